@@ -1,0 +1,119 @@
+"""The `tryon` command. Thin: it parses arguments and calls the packages."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from tryon.errors import TryonError
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from tryon.sim.runner import run_scene
+    from tryon.sim.scene import example_scene, load_scene, parse_scene, example_spec
+
+    if args.example and args.scene:
+        raise TryonError("give either a SCENE.yaml or --example NAME, not both")
+    if args.example:
+        if args.dump:
+            import yaml
+
+            print(yaml.safe_dump(example_spec(args.example, args.resolution), sort_keys=False))
+            return 0
+        scene = example_scene(args.example, args.resolution, dt=args.dt, duration=args.duration, fabric=args.fabric)
+    elif args.scene:
+        scene = load_scene(args.scene)
+        if args.dt or args.duration or args.fabric:
+            spec = dict(scene.spec)
+            spec.update({k: v for k, v in (("dt", args.dt), ("duration", args.duration)) if v})
+            if args.fabric:
+                spec["cloth"] = dict(spec["cloth"], fabric=args.fabric)
+            scene = parse_scene(spec, Path(args.scene).parent, scene.name)
+    else:
+        raise TryonError("give a SCENE.yaml or --example NAME (hanging, sphere-drop, table, pyramid)")
+    if args.linear_solver:
+        scene.options.linear_solver = args.linear_solver
+    out = Path(args.out or f"out/{scene.name}")
+    result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj)
+    s = result.summary
+    print(
+        f"{scene.name}: {s['steps']} steps in {s['wall_s']:.1f} s ({s['s_per_step'] * 1000:.1f} ms/step), "
+        f"max strain {s['max_strain'] * 100:.1f} %, intersections {s['intersections']}, "
+        f"min obstacle distance {s['min_obstacle_distance'] * 1000:.2f} mm -> {out}"
+    )
+    return 0
+
+
+def _cmd_fabrics(args: argparse.Namespace) -> int:
+    from tryon.fabric import preset_summaries
+
+    rows = preset_summaries()
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    print(f"{'name':20s} {'density g/m2':>12s} {'stretch u/v/shear N/m':>24s} {'bend mN.m':>10s}  composition")
+    for r in rows:
+        st = r["stretch_N_m"]
+        stretch = f"{st['warp_u']:.0f}/{st['weft_v']:.0f}/{st['shear']:.0f}"
+        print(f"{r['name']:20s} {r['density_kg_m2'] * 1000:12.0f} {stretch:>24s} {r['bending_N_m'] * 1000:10.4f}  {r['composition']}")
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "sim":
+        from tryon.bench.sim import run_sim_bench
+
+        run_sim_bench(args.json, quick=args.quick, threads=args.threads, grids=args.grids)
+        return 0
+    raise TryonError(f"unknown benchmark {args.what!r}; available: sim")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="tryon", description="Simulation-based virtual try-on.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="run a cloth scene (YAML or a built-in example)")
+    s.add_argument("scene", nargs="?", help="scene YAML file")
+    s.add_argument("--example", help="built-in scene: hanging, sphere-drop, table, pyramid")
+    s.add_argument("--out", help="output directory (default out/<scene>)")
+    s.add_argument("--resolution", type=int, help="grid vertices per side for --example")
+    s.add_argument("--dt", type=float, help="time step in seconds (overrides the scene)")
+    s.add_argument("--duration", type=float, help="simulated seconds (overrides the scene)")
+    s.add_argument("--fabric", help="fabric preset or .json (overrides the scene)")
+    s.add_argument("--linear-solver", choices=["auto", "cholmod", "splu", "pcg"])
+    s.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
+    s.add_argument("--no-obj", action="store_true", help="skip the OBJ sequence")
+    s.add_argument("--dump", action="store_true", help="print the example's YAML and exit")
+    s.add_argument("--quiet", action="store_true")
+    s.set_defaults(func=_cmd_simulate)
+
+    f = sub.add_parser("fabrics", help="list fabric presets")
+    f.add_argument("--json", action="store_true")
+    f.set_defaults(func=_cmd_fabrics)
+
+    b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")
+    b.add_argument("what", choices=["sim"])
+    b.add_argument("--json", default="bench_sim.json", help="output JSON path")
+    b.add_argument("--quick", action="store_true", help="fewer steps (smoke run)")
+    b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    b.add_argument("--grids", type=int, nargs="+", default=[16, 32, 64, 128])
+    b.set_defaults(func=_cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except TryonError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,259 @@
+"""Implicit (backward) Euler with one Newton step per time step (Baraff & Witkin 1998),
+ARCSim-style contact handling (Narain et al. 2012):
+
+1. proximity contacts within the thickness at the start of the step become repulsion
+   penalties and Coulomb friction inside the implicit solve;
+2. (M + dt D + dt^2 H) dv = dt (f - dt H v), H the (PSD) stiffness of elastic and contact
+   energies, D the damping of wind, friction and Rayleigh damping; pinned vertices follow
+   their handles exactly;
+3. continuous collision detection and impact zones turn the candidate positions into
+   intersection-free ones; a step whose response fails, or that produces NaN, is retried
+   with substeps, and the rigid impact-zone fail-safe is the last resort.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from tryon.errors import SimulationError
+from tryon.fabric.base import Fabric
+from tryon.sim import collision as col
+from tryon.sim.forces.bending import bending_forces
+from tryon.sim.forces.membrane import membrane_forces
+from tryon.sim.forces.wind import wind_forces
+from tryon.sim.linear import BlockPattern, LinearSolver, add_diagonal_blocks, bsr_matvec, scatter_element_blocks
+from tryon.sim.model import ClothModel, ClothState, Control
+
+
+@dataclass
+class StepOptions:
+    linear_solver: str = "auto"
+    pcg_tol: float = 1e-4
+    max_substep_depth: int = 3  # a failing step is split in 2, 4, 8 substeps
+    collisions: bool = True
+
+
+@dataclass
+class StepStats:
+    substeps: int = 0
+    contacts: int = 0
+    impacts: int = 0
+    collision_iterations: int = 0
+    solver_iterations: int = 0
+    retried: bool = False
+    fallback: bool = False
+    seconds: dict = field(default_factory=lambda: {"forces": 0.0, "solve": 0.0, "collision": 0.0})
+
+    def merge(self, other: "StepStats") -> None:
+        self.substeps += other.substeps
+        self.contacts += other.contacts
+        self.impacts += other.impacts
+        self.collision_iterations += other.collision_iterations
+        self.solver_iterations += other.solver_iterations
+        self.retried |= other.retried
+        self.fallback |= other.fallback
+        for k, v in other.seconds.items():
+            self.seconds[k] += v
+
+
+class ImplicitEulerSolver:
+    """Advances a `ClothState` of a `ClothModel`; `step` is the only place time advances."""
+
+    def __init__(self, model: ClothModel, options: StepOptions | None = None, fabric: Fabric | None = None):
+        self.model = model
+        self.options = options or StepOptions()
+        self.fabric = fabric or model.fabric
+        faces = model.faces.numpy()
+        hinges = model.hinges.numpy()
+        self.pattern = BlockPattern(model.num_vertices, [faces, hinges])
+        self.linear = LinearSolver(self.pattern, self.options.linear_solver, tol=self.options.pcg_tol)
+        self.mass = model.mass(self.fabric).detach().numpy().astype(np.float64)
+        self.pinned_mask = np.zeros(model.num_vertices, dtype=bool)
+        self.pinned_mask[model.pinned.numpy()] = True
+        self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
+        self._faces_np = faces
+        self._edges_np = model.edges.numpy()
+        self._last_dv: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ public API
+    def step(self, state: ClothState, dt: float, control: Control | None = None) -> tuple[ClothState, StepStats]:
+        """One time step of length dt; retried with substeps when it fails."""
+        if dt <= 0:
+            raise SimulationError(f"time step must be positive, got dt={dt}")
+        stats = StepStats()
+        out = self._advance_with_retries(state, dt, control, 0, stats)
+        return out, stats
+
+    # ------------------------------------------------------------------ internals
+    def _advance_with_retries(self, state, dt, control, depth, stats) -> ClothState:
+        new, ok, sub = self._advance(state, dt, control, allow_fallback=depth >= self.options.max_substep_depth)
+        stats.merge(sub)
+        if ok:
+            return new
+        if depth >= self.options.max_substep_depth:
+            raise SimulationError(
+                f"time step at t={state.t:.4f}s failed even with {2 ** depth} substeps; reduce dt or "
+                f"check the scene for cloth starting inside an obstacle"
+            )
+        stats.retried = True
+        mid = self._advance_with_retries(state, dt / 2, control, depth + 1, stats)
+        return self._advance_with_retries(mid, dt / 2, control, depth + 1, stats)
+
+    def _advance(self, state: ClothState, dt: float, control: Control | None, allow_fallback: bool):
+        m = self.model
+        stats = StepStats(substeps=1)
+        x = state.x.detach().numpy()
+        v = state.v.detach().numpy()
+        t0, t1 = state.t, state.t + dt
+        ob0 = m.obstacles.vertices_at(t0)
+        ob1 = m.obstacles.vertices_at(t1)
+
+        tic = time.perf_counter()
+        H, D, f = self._elastic_and_air(state, control)
+        contacts = self._proximity(x, ob1)
+        stats.contacts = 0 if contacts is None else len(contacts)
+        if stats.contacts:
+            self._add_contact_terms(contacts, x, v, ob0, ob1, dt, H, D, f)
+        stats.seconds["forces"] = time.perf_counter() - tic
+
+        tic = time.perf_counter()
+        A = dt * dt * H + dt * D
+        A[self.pattern.diag_block] += self._mass_blocks
+        Hv = np.zeros_like(v)
+        bsr_matvec(self.pattern.indptr, self.pattern.indices, H, v, Hv)
+        rhs = dt * (f - dt * Hv)
+        targets = m.pin_targets(t1).numpy()
+        fixed_dv = (targets - x[self.pinned_mask]) / dt - v[self.pinned_mask]
+        dv = self.linear.solve(A, rhs, self.pinned_mask, fixed_dv, guess=self._last_dv)
+        stats.solver_iterations = self.linear.last_iterations
+        stats.seconds["solve"] = time.perf_counter() - tic
+        if not np.all(np.isfinite(dv)):
+            return state, False, stats
+
+        v_new = v + dv
+        x_new = x + dt * v_new
+        x_new[self.pinned_mask] = targets
+
+        tic = time.perf_counter()
+        ok = True
+        if self.options.collisions and m.collision.enabled:
+            x_new, ok = self._respond(x, x_new, ob0, ob1, stats, allow_fallback)
+        stats.seconds["collision"] = time.perf_counter() - tic
+        if not ok:
+            return state, False, stats
+        self._last_dv = dv
+        v_new = (x_new - x) / dt
+        return ClothState(torch.from_numpy(x_new), torch.from_numpy(v_new), t1), True, stats
+
+    def _elastic_and_air(self, state: ClothState, control: Control | None):
+        """Stiffness blocks H, damping blocks D and total force f [N,3] (numpy)."""
+        m, fab = self.model, self.fabric
+        x, v = state.x, state.v
+        H = self.pattern.zeros()
+        D = self.pattern.zeros()
+        with torch.no_grad():
+            _, g_mem, h_mem = membrane_forces(x, m.faces, m.Dm_inv, m.rest_area, fab.stretching_stiffness)
+            _, g_bend, h_bend = bending_forces(
+                x, m.hinges, m.hinge_rest_theta, m.hinge_area_sum, m.hinge_edge_dir_uv, fab.bending_stiffness
+            )
+            wind_v = m.wind.velocity if control is None or control.wind_velocity is None else control.wind_velocity
+            f_wind, d_wind = wind_forces(
+                x, v, m.faces, m.rest_area, torch.as_tensor(wind_v, dtype=x.dtype), m.wind.density, m.wind.drag
+            )
+        n = m.num_vertices
+        f = -_scatter_vertex_grad(g_mem.numpy(), self._faces_np, n) - _scatter_vertex_grad(g_bend.numpy(), m.hinges.numpy(), n)
+        f += f_wind.numpy()
+        f += self.mass[:, None] * m.gravity.numpy()[None]
+        if control is not None and control.external_force is not None:
+            f += control.external_force.detach().numpy()
+        scatter_element_blocks(H, self.pattern.element_maps[0], np.ascontiguousarray(h_mem.numpy()), 3)
+        scatter_element_blocks(H, self.pattern.element_maps[1], np.ascontiguousarray(h_bend.numpy()), 4)
+        if d_wind is not None:
+            scatter_element_blocks(D, self.pattern.element_maps[0], np.ascontiguousarray(d_wind.numpy()), 3)
+        if m.damping > 0:
+            D += m.damping * H
+        return H, D, f
+
+    def _proximity(self, x: np.ndarray, ob1: np.ndarray):
+        m = self.model
+        if not (self.options.collisions and m.collision.enabled):
+            return None
+        return col.find_proximities(
+            x, self._faces_np, self._edges_np, ob1, m.obstacles.faces, m.obstacles.edges,
+            m.collision.thickness, self_collision=m.collision.self_collision,
+        )
+
+    def _add_contact_terms(self, c, x, v, ob0, ob1, dt, H, D, f) -> None:
+        """Cubic repulsion penalty E = k (h - g)^3 / (6h) on each contact gap g < h and
+        Coulomb friction as a capped tangential damping (ARCSim's proximity forces). The
+        contact Hessian and damping are lumped onto diagonal blocks (Gershgorin bound of
+        the exact rank-one blocks), which keeps the matrix pattern fixed and the system SPD."""
+        cs = self.model.collision
+        h = cs.thickness
+        idx, w, n = c.idx, c.w, c.n
+        is_cloth = idx >= 0
+        cloth_i = np.where(is_cloth, idx, 0)
+        ob_i = np.where(is_cloth, 0, -idx - 1)
+        pos = np.where(is_cloth[..., None], x[cloth_i], ob1[ob_i] if len(ob1) else 0.0)
+        vel_ob = (ob1 - ob0) / dt if len(ob1) else np.zeros((1, 3))
+        vel = np.where(is_cloth[..., None], v[cloth_i], vel_ob[ob_i])
+        gap = np.einsum("ck,ckd,cd->c", w, pos, n)
+        depth = np.maximum(h - gap, 0.0)
+        active = depth > 0
+        if not active.any():
+            return
+        idx, w, n, depth, is_cloth, cloth_i, vel = (a[active] for a in (idx, w, n, depth, is_cloth, cloth_i, vel))
+        k = cs.stiffness * float(self.model.vertex_area.mean())
+        fn = k * depth**2 / (2 * h)
+        stiff = k * depth / h
+        wc = np.where(is_cloth, w, 0.0)
+        lump = np.abs(wc) * np.abs(wc).sum(1, keepdims=True)
+        nn = n[:, :, None] * n[:, None, :]
+        self_contact = is_cloth.all(1)
+        mu = np.where(self_contact, cs.self_friction, cs.friction)
+        vr = np.einsum("ck,ckd->cd", w, vel)
+        vt = vr - np.sum(vr * n, 1, keepdims=True) * n
+        vt_norm = np.linalg.norm(vt, axis=1)
+        inv_meff = np.sum(np.where(is_cloth, wc**2 / self.mass[cloth_i], 0.0), 1)
+        gamma = np.minimum(mu * fn / np.maximum(vt_norm, 1e-12), 1.0 / (np.maximum(inv_meff, 1e-30) * dt))
+        tangent = np.eye(3)[None] - nn
+        for kk in range(4):  # the four points of every contact, vectorised over contacts
+            sel = is_cloth[:, kk]
+            verts = cloth_i[sel, kk]
+            np.add.at(f, verts, (fn[sel] * w[sel, kk])[:, None] * n[sel] - (gamma[sel] * w[sel, kk])[:, None] * vt[sel])
+            add_diagonal_blocks(H, self.pattern.diag_block, verts, (stiff[sel] * lump[sel, kk])[:, None, None] * nn[sel])
+            add_diagonal_blocks(D, self.pattern.diag_block, verts, (gamma[sel] * lump[sel, kk])[:, None, None] * tangent[sel])
+
+    def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
+        m = self.model
+        x_fixed, report = col.resolve_collisions(
+            x0, x1, self.mass, self._faces_np, self._edges_np, ob0, ob1, m.obstacles.faces, m.obstacles.edges,
+            m.collision.thickness, pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
+        )
+        stats.impacts = report.impacts_found
+        stats.collision_iterations = report.iterations
+        if report.success and np.all(np.isfinite(x_fixed)):
+            return x_fixed, True
+        if not allow_fallback:
+            return x1, False
+        stats.fallback = True
+        x_safe = col.rigid_impact_zone_fallback(
+            x0, x_fixed if np.all(np.isfinite(x_fixed)) else x1, self.mass, self._faces_np, self._edges_np,
+            ob0, ob1, m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
+            pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
+        )
+        return x_safe, True
+
+
+def _scatter_vertex_grad(grad: np.ndarray, elements: np.ndarray, n: int) -> np.ndarray:
+    """Sum per-element gradients [E, 3k] onto vertices -> [n,3]."""
+    k = elements.shape[1]
+    out = np.zeros((n, 3))
+    g = grad.reshape(len(elements), k, 3)
+    for d in range(3):
+        out[:, d] = np.bincount(elements.ravel(), weights=g[:, :, d].ravel(), minlength=n)
+    return out

@@ -1,0 +1,266 @@
+"""Sparse assembly of the implicit-Euler system and its solvers.
+
+The system matrix has one 3x3 block per pair of vertices that share a triangle or a
+bending hinge. Its sparsity pattern is fixed for a mesh, so it is built once
+(`BlockPattern`), element Hessians are scattered into it by a compiled kernel, and the
+Cholesky analysis (CHOLMOD, when scikit-sparse is installed) is reused every step.
+Solvers: CHOLMOD supernodal Cholesky, SciPy SuperLU, or a block-Jacobi preconditioned
+conjugate gradient with Baraff-Witkin constraint filtering (compiled).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from tryon.errors import SimulationError
+
+try:  # CHOLMOD is optional: it needs SuiteSparse from the system (see the Makefile).
+    from sksparse.cholmod import analyze as _cholmod_analyze
+
+    HAVE_CHOLMOD = True
+except ImportError:  # pragma: no cover - depends on the machine
+    HAVE_CHOLMOD = False
+
+
+class BlockPattern:
+    """Block sparsity of a vertex-coupled 3N x 3N symmetric matrix.
+
+    `elements` is a list of [E_k, n_k] vertex-index arrays (faces, hinges); every pair of
+    vertices inside an element, and every vertex with itself, gets a block.
+    """
+
+    def __init__(self, num_vertices: int, elements: list[np.ndarray]):
+        n = num_vertices
+        rows = [np.arange(n)]
+        cols = [np.arange(n)]
+        for el in elements:
+            k = el.shape[1]
+            a = np.repeat(np.arange(k), k)
+            b = np.tile(np.arange(k), k)
+            rows.append(el[:, a].ravel())
+            cols.append(el[:, b].ravel())
+        r = np.concatenate(rows).astype(np.int64)
+        c = np.concatenate(cols).astype(np.int64)
+        key = np.unique(r * n + c)
+        self.n = n
+        self.block_row = key // n
+        self.block_col = key % n
+        self.indptr = np.searchsorted(self.block_row, np.arange(n + 1)).astype(np.int64)
+        self.indices = self.block_col.copy()
+        self.nblocks = len(key)
+        self._key = key
+        self.diag_block = self.block_index(np.arange(n), np.arange(n))
+        self.element_maps = [self._element_map(el) for el in elements]
+        self._csc_perm, self._csc_indptr, self._csc_indices = self._scalar_csc()
+
+    def block_index(self, r: np.ndarray, c: np.ndarray) -> np.ndarray:
+        key = np.asarray(r, np.int64) * self.n + np.asarray(c, np.int64)
+        pos = np.searchsorted(self._key, key)
+        if np.any(pos >= len(self._key)) or np.any(self._key[np.minimum(pos, len(self._key) - 1)] != key):
+            raise ValueError("block outside the sparsity pattern")
+        return pos
+
+    def _element_map(self, el: np.ndarray) -> np.ndarray:
+        k = el.shape[1]
+        a = np.repeat(np.arange(k), k)
+        b = np.tile(np.arange(k), k)
+        return self.block_index(el[:, a].ravel(), el[:, b].ravel()).reshape(len(el), k * k)
+
+    def _scalar_csc(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Permutation from flattened blocks [nb,3,3] to the data of a scalar CSC matrix."""
+        br, bc = self.block_row, self.block_col
+        rr = (3 * br[:, None, None] + np.arange(3)[None, :, None]).repeat(3, 2).ravel()
+        cc = (3 * bc[:, None, None] + np.arange(3)[None, None, :]).repeat(3, 1).ravel()
+        order = np.lexsort((rr, cc))
+        indices = rr[order]
+        indptr = np.searchsorted(cc[order], np.arange(3 * self.n + 1))
+        return order, indptr.astype(np.int64), indices.astype(np.int64)
+
+    def zeros(self) -> np.ndarray:
+        return np.zeros((self.nblocks, 3, 3))
+
+    def to_csc(self, blocks: np.ndarray) -> sp.csc_matrix:
+        data = blocks.reshape(-1)[self._csc_perm]
+        return sp.csc_matrix((data, self._csc_indices, self._csc_indptr), shape=(3 * self.n, 3 * self.n))
+
+
+@nb.njit(cache=True)
+def scatter_element_blocks(blocks, element_map, hess, k):
+    """blocks[map[e, a*k+b]] += hess[e, 3a:3a+3, 3b:3b+3] for every element e."""
+    for e in range(hess.shape[0]):
+        for a in range(k):
+            for b in range(k):
+                dst = element_map[e, a * k + b]
+                for i in range(3):
+                    for j in range(3):
+                        blocks[dst, i, j] += hess[e, 3 * a + i, 3 * b + j]
+
+
+@nb.njit(cache=True)
+def add_diagonal_blocks(blocks, diag_block, vertices, block_values):
+    for q in range(vertices.shape[0]):
+        dst = diag_block[vertices[q]]
+        for i in range(3):
+            for j in range(3):
+                blocks[dst, i, j] += block_values[q, i, j]
+
+
+@nb.njit(cache=True)
+def bsr_matvec(indptr, indices, blocks, x, out):
+    n = indptr.shape[0] - 1
+    for r in range(n):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for p in range(indptr[r], indptr[r + 1]):
+            c = indices[p]
+            x0 = x[c, 0]
+            x1 = x[c, 1]
+            x2 = x[c, 2]
+            s0 += blocks[p, 0, 0] * x0 + blocks[p, 0, 1] * x1 + blocks[p, 0, 2] * x2
+            s1 += blocks[p, 1, 0] * x0 + blocks[p, 1, 1] * x1 + blocks[p, 1, 2] * x2
+            s2 += blocks[p, 2, 0] * x0 + blocks[p, 2, 1] * x1 + blocks[p, 2, 2] * x2
+        out[r, 0] = s0
+        out[r, 1] = s1
+        out[r, 2] = s2
+
+
+@nb.njit(cache=True)
+def _apply_block_precond(pinv, free, r, z):
+    for i in range(r.shape[0]):
+        if free[i]:
+            for a in range(3):
+                z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2]
+        else:
+            z[i, 0] = 0.0
+            z[i, 1] = 0.0
+            z[i, 2] = 0.0
+
+
+@nb.njit(cache=True)
+def _dot(a, b):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
+    return s
+
+
+@nb.njit(cache=True)
+def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter):
+    """Baraff-Witkin modified PCG: solves A x = b on the free vertices, keeping the given
+    values of x on constrained (not free) vertices. Block-Jacobi preconditioner.
+    Returns the iteration count; convergence when |r| <= tol * |b_free|."""
+    n = b.shape[0]
+    pinv = np.zeros((n, 3, 3))
+    for i in range(n):
+        pinv[i] = np.linalg.inv(blocks[diag_block[i]])
+    ax = np.zeros((n, 3))
+    bsr_matvec(indptr, indices, blocks, x, ax)
+    r = np.zeros((n, 3))
+    bnorm = 0.0
+    for i in range(n):
+        if free[i]:
+            for a in range(3):
+                r[i, a] = b[i, a] - ax[i, a]
+                bnorm += b[i, a] * b[i, a]
+    bnorm = np.sqrt(bnorm)
+    if bnorm == 0.0:
+        bnorm = 1.0
+    z = np.zeros((n, 3))
+    _apply_block_precond(pinv, free, r, z)
+    p = z.copy()
+    rz = _dot(r, z)
+    ap = np.zeros((n, 3))
+    it = 0
+    while it < max_iter:
+        if np.sqrt(_dot(r, r)) <= tol * bnorm:
+            break
+        bsr_matvec(indptr, indices, blocks, p, ap)
+        for i in range(n):
+            if not free[i]:
+                ap[i, 0] = 0.0
+                ap[i, 1] = 0.0
+                ap[i, 2] = 0.0
+        alpha = rz / _dot(p, ap)
+        for i in range(n):
+            for a in range(3):
+                x[i, a] += alpha * p[i, a]
+                r[i, a] -= alpha * ap[i, a]
+        _apply_block_precond(pinv, free, r, z)
+        rz_new = _dot(r, z)
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            for a in range(3):
+                p[i, a] = z[i, a] + beta * p[i, a]
+        it += 1
+    return it
+
+
+class LinearSolver:
+    """Solves (blocks) dv = rhs with dv fixed on constrained vertices.
+
+    kind: 'cholmod' (exact, reuses the symbolic analysis), 'splu' (exact, SciPy) or 'pcg'
+    (iterative, relative residual `tol`). 'auto' is PCG: warm-started from the previous
+    step it needs ~50-300 iterations here and beats a fresh Cholesky factorisation per step
+    by 2-4x at 4k-16k vertices (measured with `tryon bench sim`); the direct solvers remain
+    for exact solves.
+    """
+
+    def __init__(self, pattern: BlockPattern, kind: str = "auto", tol: float = 1e-6, max_iter: int = 2000):
+        if kind == "auto":
+            kind = "pcg"
+        if kind == "cholmod" and not HAVE_CHOLMOD:
+            raise SimulationError(
+                "linear solver 'cholmod' needs scikit-sparse (pip install 'tryon[cholmod]' with "
+                "libsuitesparse-dev installed); use 'splu' or 'pcg' instead"
+            )
+        if kind not in ("cholmod", "splu", "pcg"):
+            raise SimulationError(f"unknown linear solver {kind!r}; use auto, cholmod, splu or pcg")
+        self.kind = kind
+        self.pattern = pattern
+        self.tol = tol
+        self.max_iter = max_iter
+        self._factor = None
+        self.last_iterations = 0
+
+    def solve(self, blocks: np.ndarray, rhs: np.ndarray, fixed: np.ndarray, fixed_values: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
+        """rhs [N,3]; fixed: bool [N]; fixed_values [k,3] for the fixed vertices in order."""
+        if self.kind == "pcg":
+            return self._solve_pcg(blocks, rhs, fixed, fixed_values, guess)
+        return self._solve_direct(blocks, rhs, fixed, fixed_values)
+
+    def _solve_pcg(self, blocks, rhs, fixed, fixed_values, guess):
+        x = np.zeros_like(rhs) if guess is None else guess.copy()
+        x[fixed] = fixed_values
+        p = self.pattern
+        self.last_iterations = filtered_pcg(p.indptr, p.indices, blocks, p.diag_block, rhs, x, ~fixed, self.tol, self.max_iter)
+        return x
+
+    def _solve_direct(self, blocks, rhs, fixed, fixed_values):
+        p = self.pattern
+        x_fixed = np.zeros_like(rhs)
+        x_fixed[fixed] = fixed_values
+        b = rhs.copy()
+        if fixed.any():
+            ax = np.zeros_like(rhs)
+            bsr_matvec(p.indptr, p.indices, blocks, x_fixed, ax)
+            b -= ax
+            blocks = blocks.copy()
+            touches = fixed[p.block_row] | fixed[p.block_col]
+            blocks[touches] = 0.0
+            blocks[p.diag_block[fixed]] = np.eye(3)
+            b[fixed] = fixed_values
+        A = p.to_csc(blocks)
+        if self.kind == "cholmod":
+            if self._factor is None:
+                self._factor = _cholmod_analyze(A, mode="supernodal", ordering_method="best")
+            self._factor.cholesky_inplace(A)
+            sol = self._factor(b.reshape(-1))
+        else:
+            sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(b.reshape(-1))
+        self.last_iterations = 1
+        return np.asarray(sol).reshape(-1, 3)

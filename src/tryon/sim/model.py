@@ -1,0 +1,140 @@
+"""What a simulation run holds: `ClothModel` (does not change during a run), `ClothState`
+(changes every step) and `Control` (per-step inputs). Split as in Newton's Model/State/
+Control so that stepping, differentiation, checkpoints and time-parallel segments all see
+the same small objects."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from tryon.errors import SceneError
+from tryon.fabric.base import Fabric
+from tryon.sim.forces.geometry import build_hinges, hinge_rest_data, rest_state
+from tryon.sim.mesh import DTYPE, ClothMesh
+from tryon.sim.obstacles import Motion, Obstacle, ObstacleSet
+
+
+@dataclass
+class Wind:
+    """Uniform wind (m/s) acting through ARCSim's face drag model."""
+
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    density: float = 1.0
+    drag: float = 0.0
+
+
+@dataclass
+class CollisionSettings:
+    """Contact parameters. `thickness` (m) is the proximity distance kept between surfaces;
+    `stiffness` (N/m per m^2 of cloth area, ARCSim's collision_stiffness) scales the
+    repulsion penalty; `friction` is the Coulomb coefficient for cloth-obstacle contact and
+    `self_friction` between cloth layers."""
+
+    thickness: float = 0.005
+    stiffness: float = 1.0e6
+    friction: float = 0.3
+    self_friction: float = 0.3
+    self_collision: bool = True
+    enabled: bool = True
+
+
+@dataclass
+class PinGroup:
+    """Vertices attached to a handle that follows `motion` from their rest positions."""
+
+    vertices: torch.Tensor
+    motion: Motion = field(default_factory=Motion)
+
+
+@dataclass
+class ClothState:
+    x: torch.Tensor
+    v: torch.Tensor
+    t: float = 0.0
+
+    def clone(self) -> "ClothState":
+        return ClothState(self.x.clone(), self.v.clone(), self.t)
+
+
+@dataclass
+class Control:
+    """Per-step inputs: extra forces on vertices (N) and an optional wind override."""
+
+    external_force: torch.Tensor | None = None
+    wind_velocity: torch.Tensor | None = None
+
+
+class ClothModel:
+    """Everything about a cloth run that is fixed: mesh, fabric, rest shape, masses,
+    pins/handles, gravity, wind, obstacles and contact settings."""
+
+    def __init__(
+        self,
+        mesh: ClothMesh,
+        fabric: Fabric,
+        pins: list[PinGroup] | None = None,
+        gravity: tuple[float, float, float] = (0.0, 0.0, -9.8),
+        wind: Wind | None = None,
+        obstacles: list[Obstacle] | None = None,
+        collision: CollisionSettings | None = None,
+        damping: float = 0.0,
+    ):
+        self.mesh = mesh
+        self.fabric = fabric
+        self.pins = pins or []
+        self.gravity = torch.tensor(gravity, dtype=DTYPE)
+        self.wind = wind or Wind()
+        self.obstacles = ObstacleSet(obstacles or [])
+        self.collision = collision or CollisionSettings()
+        self.damping = float(damping)
+        self.faces = mesh.faces
+        self.edges = mesh.edges
+        self.Dm_inv, self.rest_area = rest_state(mesh.uv, mesh.faces)
+        self.hinges = build_hinges(mesh.faces)
+        hd = hinge_rest_data(None, mesh.uv, mesh.faces, self.hinges)
+        self.hinge_rest_theta = hd["rest_theta"]
+        self.hinge_area_sum = hd["area_sum"]
+        self.hinge_edge_dir_uv = hd["edge_dir_uv"]
+        self.vertex_area = self._vertex_areas()
+        self.pinned = self._pinned_indices()
+
+    def _vertex_areas(self) -> torch.Tensor:
+        n = self.mesh.num_vertices
+        area = torch.zeros(n, dtype=DTYPE)
+        area.index_add_(0, self.faces.reshape(-1), (self.rest_area / 3).repeat_interleave(3))
+        return area
+
+    def _pinned_indices(self) -> torch.Tensor:
+        if not self.pins:
+            return torch.zeros(0, dtype=torch.int64)
+        idx = torch.cat([p.vertices for p in self.pins])
+        n = self.mesh.num_vertices
+        if len(idx) and (int(idx.min()) < 0 or int(idx.max()) >= n):
+            raise SceneError(f"pinned vertex indices must lie in [0, {n - 1}]")
+        if len(torch.unique(idx)) != len(idx):
+            raise SceneError("a vertex is pinned by more than one handle")
+        return idx
+
+    def mass(self, fabric: Fabric | None = None) -> torch.Tensor:
+        """Lumped vertex masses (kg): areal density times a third of adjacent rest areas."""
+        return (fabric or self.fabric).density * self.vertex_area
+
+    def pin_targets(self, t: float) -> torch.Tensor:
+        """World positions [k,3] of the pinned vertices at time t (handles follow their motion)."""
+        if not self.pins:
+            return torch.zeros((0, 3), dtype=DTYPE)
+        parts = []
+        for group in self.pins:
+            rest = self.mesh.x[group.vertices].numpy()
+            parts.append(torch.from_numpy(np.ascontiguousarray(group.motion.apply(rest, t))))
+        return torch.cat(parts)
+
+    def initial_state(self) -> ClothState:
+        return ClothState(self.mesh.x.clone(), torch.zeros_like(self.mesh.x), 0.0)
+
+    @property
+    def num_vertices(self) -> int:
+        return self.mesh.num_vertices
