@@ -36,8 +36,9 @@ def test_pyramid_many_contacts_stay_intersection_free():
 def test_sphere_drop_rests_on_sphere_without_penetration():
     scene = example_scene("sphere-drop", 12, duration=0.5)
     s, metrics = _run(scene, scene.num_steps, check_every=5)
-    top = s.x.numpy()[np.argmax(-np.linalg.norm(s.x.numpy()[:, :2], axis=1))]
-    assert 0.25 < top[2] < 0.25 + 0.02
+    radius = np.linalg.norm(s.x.numpy(), axis=1)  # sphere of radius 0.25 at the origin
+    assert radius.min() > 0.25 - 1e-3  # outside (up to the icosphere's facet sag)
+    assert radius.min() < 0.25 + 0.01  # and resting on it, not floating
     assert all(m["obstacle_intersections"] == 0 for m in metrics)
 
 

@@ -53,11 +53,16 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
-    print(f"{'name':20s} {'density g/m2':>12s} {'stretch u/v/shear N/m':>24s} {'bend mN.m':>10s}  composition")
+    print(f"{'name':20s} {'g/m2':>6s} {'stretch u/v/shear N/m':>22s} {'at 16% strain':>16s} {'bend u/v uN.m':>14s}  composition")
     for r in rows:
-        st = r["stretch_N_m"]
-        stretch = f"{st['warp_u']:.0f}/{st['weft_v']:.0f}/{st['shear']:.0f}"
-        print(f"{r['name']:20s} {r['density_kg_m2'] * 1000:12.0f} {stretch:>24s} {r['bending_N_m'] * 1000:10.4f}  {r['composition']}")
+        st, st16, bend = r["stretch_N_m"], r.get("stretch_N_m_at_16pct") or r["stretch_N_m"], r["bending_N_m"]
+        small = f"{st['warp_u']:.0f}/{st['weft_v']:.0f}/{st['shear']:.0f}"
+        large = f"{st16['warp_u']:.0f}/{st16['weft_v']:.0f}/{st16['shear']:.0f}"
+        if isinstance(bend, dict):
+            bend_txt = f"{bend['edge_along_u'] * 1e6:.1f}/{bend['edge_along_v'] * 1e6:.1f}"
+        else:
+            bend_txt = f"{bend * 1e6:.1f}"
+        print(f"{r['name']:20s} {r['density_kg_m2'] * 1000:6.0f} {small:>22s} {large:>16s} {bend_txt:>14s}  {r['composition']}")
     return 0
 
 

@@ -116,8 +116,7 @@ class ImplicitEulerSolver:
         H, D, f = self._elastic_and_air(state, control)
         contacts = self._proximity(x, ob1)
         stats.contacts = 0 if contacts is None else len(contacts)
-        if stats.contacts:
-            self._add_contact_terms(contacts, x, v, ob0, ob1, dt, H, D, f)
+        active = self._add_contact_terms(contacts, x, v, ob1, H, f) if stats.contacts else None
         stats.seconds["forces"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -135,6 +134,9 @@ class ImplicitEulerSolver:
             return state, False, stats
 
         v_new = v + dv
+        if active is not None:
+            self._apply_friction(active, v_new, ob0, ob1, dt)
+            v_new[self.pinned_mask] = v[self.pinned_mask] + fixed_dv
         x_new = x + dt * v_new
         x_new[self.pinned_mask] = targets
 
@@ -187,46 +189,62 @@ class ImplicitEulerSolver:
             m.collision.thickness, self_collision=m.collision.self_collision,
         )
 
-    def _add_contact_terms(self, c, x, v, ob0, ob1, dt, H, D, f) -> None:
-        """Cubic repulsion penalty E = k (h - g)^3 / (6h) on each contact gap g < h and
-        Coulomb friction as a capped tangential damping (ARCSim's proximity forces). The
-        contact Hessian and damping are lumped onto diagonal blocks (Gershgorin bound of
-        the exact rank-one blocks), which keeps the matrix pattern fixed and the system SPD."""
+    def _add_contact_terms(self, c, x, v, ob1, H, f):
+        """Cubic repulsion penalty E = k (h - g)^3 / (6h) on every contact gap g < h
+        (ARCSim's proximity constraints; k = collision stiffness x mean vertex area). The
+        rank-one contact Hessians are lumped onto diagonal blocks (a Gershgorin bound of the
+        exact blocks), which keeps the matrix pattern fixed and the system SPD. Returns the
+        active contacts with their normal forces, for friction."""
         cs = self.model.collision
         h = cs.thickness
-        idx, w, n = c.idx, c.w, c.n
-        is_cloth = idx >= 0
-        cloth_i = np.where(is_cloth, idx, 0)
-        ob_i = np.where(is_cloth, 0, -idx - 1)
-        pos = np.where(is_cloth[..., None], x[cloth_i], ob1[ob_i] if len(ob1) else 0.0)
-        vel_ob = (ob1 - ob0) / dt if len(ob1) else np.zeros((1, 3))
-        vel = np.where(is_cloth[..., None], v[cloth_i], vel_ob[ob_i])
-        gap = np.einsum("ck,ckd,cd->c", w, pos, n)
+        pts = _contact_points(c, x, ob1)
+        gap = np.einsum("ck,ckd,cd->c", c.w, pts.pos, c.n)
         depth = np.maximum(h - gap, 0.0)
         active = depth > 0
         if not active.any():
-            return
-        idx, w, n, depth, is_cloth, cloth_i, vel = (a[active] for a in (idx, w, n, depth, is_cloth, cloth_i, vel))
+            return None
+        act = _select(c, pts, active)
+        depth = depth[active]
         k = cs.stiffness * float(self.model.vertex_area.mean())
         fn = k * depth**2 / (2 * h)
         stiff = k * depth / h
-        wc = np.where(is_cloth, w, 0.0)
+        wc = np.where(act.is_cloth, act.w, 0.0)
         lump = np.abs(wc) * np.abs(wc).sum(1, keepdims=True)
-        nn = n[:, :, None] * n[:, None, :]
-        self_contact = is_cloth.all(1)
-        mu = np.where(self_contact, cs.self_friction, cs.friction)
-        vr = np.einsum("ck,ckd->cd", w, vel)
-        vt = vr - np.sum(vr * n, 1, keepdims=True) * n
-        vt_norm = np.linalg.norm(vt, axis=1)
-        inv_meff = np.sum(np.where(is_cloth, wc**2 / self.mass[cloth_i], 0.0), 1)
-        gamma = np.minimum(mu * fn / np.maximum(vt_norm, 1e-12), 1.0 / (np.maximum(inv_meff, 1e-30) * dt))
-        tangent = np.eye(3)[None] - nn
-        for kk in range(4):  # the four points of every contact, vectorised over contacts
-            sel = is_cloth[:, kk]
-            verts = cloth_i[sel, kk]
-            np.add.at(f, verts, (fn[sel] * w[sel, kk])[:, None] * n[sel] - (gamma[sel] * w[sel, kk])[:, None] * vt[sel])
-            add_diagonal_blocks(H, self.pattern.diag_block, verts, (stiff[sel] * lump[sel, kk])[:, None, None] * nn[sel])
-            add_diagonal_blocks(D, self.pattern.diag_block, verts, (gamma[sel] * lump[sel, kk])[:, None, None] * tangent[sel])
+        nn = act.n[:, :, None] * act.n[:, None, :]
+        verts = act.cloth_i[act.is_cloth]
+        force = ((fn[:, None] * wc)[..., None] * act.n[:, None, :])[act.is_cloth]
+        f += _scatter_rows(force, verts, len(f))
+        blocks = (stiff[:, None] * lump)[..., None, None] * nn[:, None]
+        add_diagonal_blocks(H, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[act.is_cloth]))
+        act.fn = fn
+        return act
+
+    def _apply_friction(self, act, v_new, ob0, ob1, dt) -> None:
+        """Coulomb friction as a velocity filter after the solve (Bridson, Fedkiw & Anderson
+        2002), per cloth vertex: the change that would stop the relative tangential motion
+        of its contacts (their force-weighted mean) is applied up to the friction budget
+        mu*dt*sum(fn)/m, so vertices inside the friction cone stick and the others slide."""
+        cs = self.model.collision
+        vel_ob = (ob1 - ob0) / dt if len(ob1) else np.zeros((1, 3))
+        vel = np.where(act.is_cloth[..., None], v_new[act.cloth_i], vel_ob[act.ob_i])
+        vr = np.einsum("ck,ckd->cd", act.w, vel)
+        vt = vr - np.sum(vr * act.n, 1, keepdims=True) * act.n
+        wc = np.where(act.is_cloth, act.w, 0.0)
+        inv_m = np.where(act.is_cloth, 1.0 / self.mass[act.cloth_i], 0.0)
+        inv_meff = np.maximum(np.sum(wc**2 * inv_m, 1), 1e-30)
+        mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction)
+        weight = np.abs(wc) * act.fn[:, None]  # [C,4] how much each contact matters to a point
+        stop = -((wc * inv_m) / inv_meff[:, None])[..., None] * vt[:, None, :]  # [C,4,3]
+        budget = (mu * dt * act.fn)[:, None] * np.abs(wc) * inv_m  # [C,4] speed budget
+        sel = act.is_cloth
+        verts = act.cloth_i[sel]
+        n = len(v_new)
+        wsum = np.bincount(verts, weights=weight[sel], minlength=n)
+        want = _scatter_rows((stop * weight[..., None])[sel], verts, n) / np.maximum(wsum, 1e-300)[:, None]
+        cap = np.bincount(verts, weights=budget[sel], minlength=n)
+        size = np.linalg.norm(want, axis=1)
+        factor = np.where(size > cap, cap / np.maximum(size, 1e-300), 1.0)
+        v_new += want * factor[:, None]
 
     def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
         m = self.model
@@ -247,6 +265,41 @@ class ImplicitEulerSolver:
             pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
         )
         return x_safe, True
+
+
+@dataclass
+class _ContactPoints:
+    """The four points of every contact resolved to cloth or obstacle vertices."""
+
+    idx: np.ndarray
+    w: np.ndarray
+    n: np.ndarray
+    is_cloth: np.ndarray
+    cloth_i: np.ndarray
+    ob_i: np.ndarray
+    pos: np.ndarray
+    fn: np.ndarray | None = None
+
+
+def _contact_points(c, x: np.ndarray, ob: np.ndarray) -> _ContactPoints:
+    is_cloth = c.idx >= 0
+    cloth_i = np.where(is_cloth, c.idx, 0)
+    ob_i = np.where(is_cloth, 0, -c.idx - 1)
+    ob_pos = ob[ob_i] if len(ob) else np.zeros(cloth_i.shape + (3,))
+    pos = np.where(is_cloth[..., None], x[cloth_i], ob_pos)
+    return _ContactPoints(c.idx, c.w, c.n, is_cloth, cloth_i, ob_i, pos)
+
+
+def _select(c, pts: _ContactPoints, mask: np.ndarray) -> _ContactPoints:
+    return _ContactPoints(c.idx[mask], c.w[mask], c.n[mask], pts.is_cloth[mask], pts.cloth_i[mask], pts.ob_i[mask], pts.pos[mask])
+
+
+def _scatter_rows(values: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
+    """out[rows[i]] += values[i] for [M,3] values (bincount: much faster than np.add.at)."""
+    out = np.empty((n, 3))
+    for d in range(3):
+        out[:, d] = np.bincount(rows, weights=values[:, d], minlength=n)
+    return out
 
 
 def _scatter_vertex_grad(grad: np.ndarray, elements: np.ndarray, n: int) -> np.ndarray:

@@ -1,0 +1,54 @@
+"""Collision detection and response for cloth against itself and one kinematic obstacle
+soup (ARCSim-style: Narain et al. 2012; Bridson, Fedkiw & Anderson 2002; Harmon et al. 2008).
+
+Per time step the simulator calls
+1. `find_proximities` at the start positions: contacts closer than the thickness, for the
+   repulsion penalty and friction inside the implicit solve;
+2. `resolve_collisions` on the solve's candidate end positions: continuous collision
+   detection and impact-zone projection so that the step ends free of intersections;
+3. `rigid_impact_zone_fallback` when that fails even after substepping.
+
+All contacts share one representation (`Contacts`): four point ids, weights summing to
+zero and a unit normal, gap d = sum_k w_k n . p_k. Kernels are numba-compiled (cache=True).
+"""
+
+from tryon.sim.collision.bvh import BVH, overlapping_pairs
+from tryon.sim.collision.ccd import find_impacts
+from tryon.sim.collision.contacts import (
+    EE_OBSTACLE,
+    EE_SELF,
+    FV_OBSTACLE,
+    KIND_NAMES,
+    VF_OBSTACLE,
+    VF_SELF,
+    Contacts,
+)
+from tryon.sim.collision.impact_zones import (
+    CollisionReport,
+    project_constraints,
+    resolve_collisions,
+    rigid_impact_zone_fallback,
+)
+from tryon.sim.collision.intersections import count_intersections, min_obstacle_distance, signed_obstacle_distance
+from tryon.sim.collision.proximity import find_proximities
+
+__all__ = [
+    "BVH",
+    "CollisionReport",
+    "Contacts",
+    "EE_OBSTACLE",
+    "EE_SELF",
+    "FV_OBSTACLE",
+    "KIND_NAMES",
+    "VF_OBSTACLE",
+    "VF_SELF",
+    "count_intersections",
+    "find_impacts",
+    "find_proximities",
+    "min_obstacle_distance",
+    "overlapping_pairs",
+    "project_constraints",
+    "resolve_collisions",
+    "rigid_impact_zone_fallback",
+    "signed_obstacle_distance",
+]

@@ -147,14 +147,18 @@ def _split_index(codes: np.ndarray, start: int, end: int) -> int:
     return hi_i
 
 
-@jit
 def build_tree(lo: np.ndarray, hi: np.ndarray, leaf_size: int):
     """Topology of a BVH over boxes: (order [n], child [K,2], first [K], count [K]).
     Leaves have child = -1 and hold primitives order[first : first + count]."""
-    n = lo.shape[0]
     codes = _morton_codes(lo, hi)
-    order = np.argsort(codes, kind="mergesort")
-    scodes = codes[order]
+    order = np.argsort(codes, kind="stable")  # numpy's radix/timsort beats numba's sort here
+    child, first, count = _split_nodes(codes[order], leaf_size)
+    return order, child, first, count
+
+
+@jit
+def _split_nodes(scodes: np.ndarray, leaf_size: int):
+    n = scodes.shape[0]
     cap = max(2 * n, 1)
     child = np.full((cap, 2), -1, np.int64)
     first = np.zeros(cap, np.int64)
@@ -190,7 +194,7 @@ def build_tree(lo: np.ndarray, hi: np.ndarray, leaf_size: int):
         stack[sp + 1, 1] = m
         stack[sp + 1, 2] = e
         sp += 2
-    return order, child[:n_nodes].copy(), first[:n_nodes].copy(), count[:n_nodes].copy()
+    return child[:n_nodes].copy(), first[:n_nodes].copy(), count[:n_nodes].copy()
 
 
 @jit
@@ -239,17 +243,9 @@ def _overlap(alo, ahi, i, blo, bhi, j) -> bool:
 
 
 @jit
-def _volume(lo, hi, i) -> float:
-    return (hi[i, 0] - lo[i, 0]) * (hi[i, 1] - lo[i, 1]) * (hi[i, 2] - lo[i, 2])
-
-
-@jit
-def _push_pair(buf, k, a, b):
-    if k >= buf.shape[0]:
-        buf = _grow(buf)
-    buf[k, 0] = a
-    buf[k, 1] = b
-    return buf
+def _size(lo, hi, i) -> float:
+    """Half perimeter of a box (its volume is zero for flat geometry)."""
+    return (hi[i, 0] - lo[i, 0]) + (hi[i, 1] - lo[i, 1]) + (hi[i, 2] - lo[i, 2])
 
 
 @jit
@@ -270,22 +266,13 @@ def overlap_pairs(a_order, a_child, a_first, a_count, a_nlo, a_nhi, a_lo, a_hi,
         sp -= 1
         a = stack[sp, 0]
         b = stack[sp, 1]
+        if sp + 3 > stack.shape[0]:
+            stack = _grow(stack)
+        a_leaf = a_child[a, 0] < 0
         if same and a == b:
-            if a_child[a, 0] < 0:
-                s = a_first[a]
-                e = s + a_count[a]
-                for u in range(s, e):
-                    i = a_order[u]
-                    for v in range(u + 1, e):
-                        j = a_order[v]
-                        if _overlap(a_lo, a_hi, i, a_lo, a_hi, j):
-                            out = _push_pair(out, k, i, j)
-                            k += 1
-            else:
+            if not a_leaf:
                 l_ = a_child[a, 0]
                 r_ = a_child[a, 1]
-                if sp + 3 > stack.shape[0]:
-                    stack = _grow(stack)
                 stack[sp, 0] = l_
                 stack[sp, 1] = l_
                 stack[sp + 1, 0] = r_
@@ -293,23 +280,26 @@ def overlap_pairs(a_order, a_child, a_first, a_count, a_nlo, a_nhi, a_lo, a_hi,
                 stack[sp + 2, 0] = l_
                 stack[sp + 2, 1] = r_
                 sp += 3
+                continue
+        elif not _overlap(a_nlo, a_nhi, a, b_nlo, b_nhi, b):
             continue
-        if not _overlap(a_nlo, a_nhi, a, b_nlo, b_nhi, b):
-            continue
-        a_leaf = a_child[a, 0] < 0
         b_leaf = b_child[b, 0] < 0
         if a_leaf and b_leaf:
+            if k + a_count[a] * b_count[b] > out.shape[0]:
+                out = _grow(out)
             for u in range(a_first[a], a_first[a] + a_count[a]):
                 i = a_order[u]
-                for v in range(b_first[b], b_first[b] + b_count[b]):
+                v0 = b_first[b]
+                if same and a == b:
+                    v0 = u + 1
+                for v in range(v0, b_first[b] + b_count[b]):
                     j = b_order[v]
                     if _overlap(a_lo, a_hi, i, b_lo, b_hi, j):
-                        out = _push_pair(out, k, i, j)
+                        out[k, 0] = i
+                        out[k, 1] = j
                         k += 1
             continue
-        if sp + 2 > stack.shape[0]:
-            stack = _grow(stack)
-        if a_leaf or (not b_leaf and _volume(a_nlo, a_nhi, a) < _volume(b_nlo, b_nhi, b)):
+        if a_leaf or (not b_leaf and _size(a_nlo, a_nhi, a) < _size(b_nlo, b_nhi, b)):
             stack[sp, 0] = a
             stack[sp, 1] = b_child[b, 0]
             stack[sp + 1, 0] = a

@@ -43,6 +43,7 @@ BendingStiffnessFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 MIN_HEIGHT_FRACTION = 1e-3  # ARCSim physics.cpp distance(): h >= 1e-3 |e|
 TINY = 1e-300
+F64 = torch.float64
 
 
 # --------------------------------------------------------------------------- torch path
@@ -186,6 +187,8 @@ def _theta_kernel(x, hinges, reference, use_reference, theta, length, dtheta):
 
 @njit(cache=True)
 def _bending_kernel(theta, rest_theta, coeff, dtheta, energy, grad, hess, with_hessian):
+    """``E = c/2 (theta - rest)^2``, ``grad = c (theta - rest) dtheta``, ``hess = c dtheta dtheta^T``
+    with ``c = ke l^2 / (4 (A0 + A1))``."""
     for h in range(theta.shape[0]):
         d = theta[h] - rest_theta[h]
         c = coeff[h]
@@ -214,8 +217,9 @@ def _forces_kernel(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, w
         return None
     coeff = as_numpy(ke * length_t * length_t / (4.0 * area_sum))
     energy, grad = torch.from_numpy(np.empty(num)), torch.from_numpy(np.empty((num, 12)))
-    hess = output_buffer((num, 12, 12), hess_out, "hess_out") if with_hessian else torch.empty(1, 12, 12, dtype=torch.float64)
-    _bending_kernel(theta, as_numpy(rest_theta), coeff, dtheta, energy.numpy(), grad.numpy(), hess.numpy(), with_hessian)
+    hess = output_buffer((num, 12, 12), hess_out, "hess_out") if with_hessian else torch.empty(1, 12, 12, dtype=F64)
+    rest = as_numpy(rest_theta)
+    _bending_kernel(theta, rest, coeff, dtheta, energy.numpy(), grad.numpy(), hess.numpy(), with_hessian)
     return energy, grad, (hess if with_hessian else None)
 
 

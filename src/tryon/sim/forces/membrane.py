@@ -38,6 +38,7 @@ from numba import njit
 
 from tryon.sim.forces.geometry import as_numpy, numba_path_ok, output_buffer
 
+F64 = torch.float64
 StiffnessFn = Callable[[torch.Tensor], torch.Tensor]
 
 
@@ -151,6 +152,7 @@ def _stiffness(stiffness_fn: StiffnessFn, G: torch.Tensor) -> torch.Tensor:
 
 @njit(cache=True)
 def _strain_kernel(x, faces, Dm_inv, G):
+    """Green strain ``G [F, 3]`` (same formula as `_green`), one face at a time."""
     for f in range(faces.shape[0]):
         i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
         uu = 0.0
@@ -171,6 +173,8 @@ def _strain_kernel(x, faces, Dm_inv, G):
 
 @njit(cache=True)
 def _membrane_kernel(x, faces, Dm_inv, area, G, k, energy, grad, hess, with_hessian):
+    """Energy, gradient and (optionally) Hessian per face: the formulas of `_gradient_torch`
+    and `_hessian_torch`, with the Hessian's upper triangle mirrored (exactly symmetric)."""
     Fu = np.empty(3)
     Fv = np.empty(3)
     a = np.empty(3)
@@ -238,7 +242,7 @@ def _forces_kernel(x, faces, Dm_inv, rest_area, stiffness_fn, with_hessian, hess
     if torch.is_grad_enabled() and k.requires_grad:
         return None
     energy, grad = torch.from_numpy(np.empty(num)), torch.from_numpy(np.empty((num, 9)))
-    hess = output_buffer((num, 9, 9), hess_out, "hess_out") if with_hessian else torch.empty(1, 9, 9, dtype=torch.float64)
+    hess = output_buffer((num, 9, 9), hess_out, "hess_out") if with_hessian else torch.empty(1, 9, 9, dtype=F64)
     _membrane_kernel(xs, fs, ds, area, G, as_numpy(k), energy.numpy(), grad.numpy(), hess.numpy(), with_hessian)
     return energy, grad, (hess if with_hessian else None)
 

@@ -1,0 +1,126 @@
+"""The uniform contact representation shared by proximity penalties, impact zones and the
+differentiable QP layer.
+
+A contact c involves four points p_k with ids idx[c, k] (cloth vertex idx >= 0, obstacle
+vertex -idx-1 when idx < 0), weights w[c, k] with sum_k w[c, k] = 0 and a unit normal
+n[c]; its gap is d = sum_k w_k n . p_k, positive on the side the primitives are meant to
+stay on.
+
+- vertex-face (p0 the vertex, p1..p3 the face): w = (1, -b0, -b1, -b2);
+- edge-edge (edges p0p1 and p2p3): w = (1-a, a, -(1-b), -b).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from tryon.errors import MeshError
+
+VF_SELF = 0  # cloth vertex - cloth face
+EE_SELF = 1  # cloth edge - cloth edge
+VF_OBSTACLE = 2  # cloth vertex - obstacle face
+FV_OBSTACLE = 3  # obstacle vertex - cloth face
+EE_OBSTACLE = 4  # cloth edge - obstacle edge
+KIND_NAMES = ("vf_self", "ee_self", "vf_obstacle", "fv_obstacle", "ee_obstacle")
+
+
+@dataclass
+class Contacts:
+    """A batch of contacts (see the module docstring). `d` is the gap when detected and
+    `time` the time of impact in [0, 1] (0 for proximity contacts)."""
+
+    idx: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    w: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    n: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    d: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    time: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @classmethod
+    def empty(cls) -> "Contacts":
+        return cls()
+
+    def __len__(self) -> int:
+        return int(self.idx.shape[0])
+
+    def __add__(self, other: "Contacts") -> "Contacts":
+        return Contacts.concatenate([self, other])
+
+    @staticmethod
+    def concatenate(parts: Sequence["Contacts"]) -> "Contacts":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return Contacts.empty()
+        if len(parts) == 1:
+            return parts[0]
+        return Contacts(
+            np.concatenate([p.idx for p in parts]),
+            np.concatenate([p.w for p in parts]),
+            np.concatenate([p.n for p in parts]),
+            np.concatenate([p.d for p in parts]),
+            np.concatenate([p.kind for p in parts]),
+            np.concatenate([p.time for p in parts]),
+        )
+
+    def select(self, which: np.ndarray) -> "Contacts":
+        """The contacts picked by a boolean mask or an index array."""
+        return Contacts(self.idx[which], self.w[which], self.n[which], self.d[which], self.kind[which], self.time[which])
+
+    def points(self, x: np.ndarray, ob: np.ndarray | None) -> np.ndarray:
+        """Positions [C,4,3] of the contact points, cloth from x and obstacle from ob."""
+        cloth = self.idx >= 0
+        pts = x[np.where(cloth, self.idx, 0)]
+        if (~cloth).any():
+            if ob is None or len(ob) == 0:
+                raise MeshError("contacts refer to obstacle vertices but no obstacle positions were given")
+            pts = np.where(cloth[..., None], pts, ob[np.where(cloth, 0, -self.idx - 1)])
+        return pts
+
+    def gaps(self, x: Any, ob: Any = None) -> np.ndarray:
+        """Gaps d_c = sum_k w_ck n_c . p_k at cloth positions x and obstacle positions ob."""
+        if len(self) == 0:
+            return np.zeros(0)
+        x = as_points(x, "x")
+        ob = None if ob is None else as_points(ob, "ob")
+        return np.einsum("ck,ckd,cd->c", self.w, self.points(x, ob), self.n)
+
+    def counts(self) -> dict[str, int]:
+        """Number of contacts of each kind."""
+        return {name: int(np.sum(self.kind == k)) for k, name in enumerate(KIND_NAMES)}
+
+
+# --------------------------------------------------------------------------- input checks
+def as_points(a: Any, name: str) -> np.ndarray:
+    """Float64 C-contiguous [N,3] numpy array from numpy or torch input."""
+    if hasattr(a, "detach"):
+        a = a.detach().cpu().numpy()
+    arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64))
+    if arr.size == 0:
+        return arr.reshape(0, 3)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise MeshError(f"{name}: expected positions of shape [N,3], got {list(arr.shape)}")
+    return arr
+
+
+def as_index(a: Any, width: int, name: str, n_vertices: int) -> np.ndarray:
+    """Int64 C-contiguous [K,width] index array, checked against n_vertices."""
+    if a is None:
+        return np.zeros((0, width), np.int64)
+    if hasattr(a, "detach"):
+        a = a.detach().cpu().numpy()
+    arr = np.ascontiguousarray(np.asarray(a, dtype=np.int64))
+    if arr.size == 0:
+        return arr.reshape(0, width)
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise MeshError(f"{name}: expected an index array of shape [K,{width}], got {list(arr.shape)}")
+    if arr.min() < 0 or arr.max() >= n_vertices:
+        raise MeshError(f"{name}: vertex ids must lie in [0, {n_vertices}), got [{arr.min()}, {arr.max()}]; check the mesh")
+    return arr
+
+
+def check_finite(a: np.ndarray, name: str) -> None:
+    if not np.all(np.isfinite(a)):
+        raise MeshError(f"{name}: positions contain NaN or infinity; fix the input (or retry the step with a smaller dt)")

@@ -1,0 +1,64 @@
+"""Normals of a triangle mesh: face normals and the pseudonormals of edges and vertices
+(Baerentzen & Aanaes 2005), used to orient obstacle contacts and to sign distances."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def face_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit normals [F,3] by the right-hand rule on each face's winding (zero if degenerate)."""
+    if len(faces) == 0:
+        return np.zeros((0, 3))
+    n = np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
+
+
+def vertex_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Angle-weighted vertex pseudonormals [N,3] (Thuermer & Wuethrich 1998)."""
+    out = np.zeros((len(x), 3))
+    if len(faces) == 0:
+        return out
+    nf = face_normals(x, faces)
+    for k in range(3):  # the three corners of every face, vectorised over faces
+        a = x[faces[:, k]]
+        e1 = _unit(x[faces[:, (k + 1) % 3]] - a)
+        e2 = _unit(x[faces[:, (k + 2) % 3]] - a)
+        angle = np.arccos(np.clip(np.sum(e1 * e2, 1), -1.0, 1.0))
+        np.add.at(out, faces[:, k], angle[:, None] * nf)
+    return _unit(out)
+
+
+def face_edge_ids(faces: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """For every face corner k, the id [F,3] of the edge (v_k, v_{k+1}) in `edges`
+    (-1 when the edge is not listed)."""
+    if len(faces) == 0:
+        return np.zeros((0, 3), np.int64)
+    nv = int(max(faces.max(), edges.max() if len(edges) else 0)) + 1
+    ekey = np.sort(edges, 1) @ np.array([nv, 1]) if len(edges) else np.zeros(0, np.int64)
+    order = np.argsort(ekey)
+    skey = ekey[order]
+    fe = np.stack([faces, np.roll(faces, -1, axis=1)], -1)  # [F,3,2]
+    fkey = np.sort(fe, -1) @ np.array([nv, 1])
+    pos = np.clip(np.searchsorted(skey, fkey), 0, max(len(skey) - 1, 0))
+    found = (skey[pos] == fkey) if len(skey) else np.zeros(fkey.shape, bool)
+    return np.where(found, order[pos] if len(skey) else 0, -1)
+
+
+def edge_normals(x: np.ndarray, faces: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Edge pseudonormals [E,3]: the normalised sum of the adjacent faces' unit normals."""
+    out = np.zeros((len(edges), 3))
+    if len(edges) == 0 or len(faces) == 0:
+        return out
+    nf = face_normals(x, faces)
+    fe = face_edge_ids(faces, edges)
+    for k in range(3):  # the three edges of every face, vectorised over faces
+        ok = fe[:, k] >= 0
+        np.add.at(out, fe[ok, k], nf[ok])
+    return _unit(out)

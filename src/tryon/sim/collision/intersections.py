@@ -1,0 +1,170 @@
+"""Discrete checks of a configuration: edge-triangle intersections and distances from cloth
+vertices to the obstacle surface (signed with angle-weighted pseudonormals, Baerentzen &
+Aanaes 2005)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tryon.sim.collision.bvh import BVH, _box_dist2, element_boxes, overlapping_pairs
+from tryon.sim.collision.contacts import as_index, as_points, check_finite
+from tryon.sim.collision.geometry import edge_normals, face_edge_ids, face_normals, vertex_normals
+from tryon.sim.collision.primitives import jit, point_triangle_distance, row, segment_triangle_intersect
+from tryon.sim.collision.proximity import prepare_inputs
+
+# plane-side tolerance (m) of the discrete test: an edge must cross the face plane by more
+# than this, so coplanar neighbours of a flat sheet never count as intersecting
+CROSS_TOL = 1e-12
+
+
+@jit
+def edge_face_hits(pairs, xe, edges, xf, faces, same, tol):
+    """Mask [K] of candidate (edge, face) pairs whose segment crosses the triangle; with
+    same=True pairs sharing a vertex are skipped."""
+    k = pairs.shape[0]
+    hit = np.zeros(k, np.bool_)
+    for c in range(k):
+        e = pairs[c, 0]
+        f = pairs[c, 1]
+        a, b = edges[e, 0], edges[e, 1]
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        if same and (a == i0 or a == i1 or a == i2 or b == i0 or b == i1 or b == i2):
+            continue
+        hit[c] = segment_triangle_intersect(row(xe, a), row(xe, b), row(xf, i0), row(xf, i1), row(xf, i2), tol)
+    return hit
+
+
+def edge_face_intersections(x, edges, xf, faces, same: bool) -> np.ndarray:
+    """Pairs [K,2] (edge id, face id) of intersecting edges and faces, found through BVHs."""
+    if len(edges) == 0 or len(faces) == 0:
+        return np.zeros((0, 2), np.int64)
+    segs = BVH.build(*element_boxes(x, edges, 0.0))
+    tris = BVH.build(*element_boxes(xf, faces, 0.0))
+    pairs = overlapping_pairs(segs, tris)
+    return pairs[edge_face_hits(pairs, x, edges, xf, faces, same, CROSS_TOL)]
+
+
+def count_intersections(
+    x: Any, faces: Any, edges: Any, ob: Any, ob_faces: Any, ob_edges: Any, self_collision: bool = True
+) -> tuple[int, int]:
+    """(self, obstacle) counts of intersecting (edge, triangle) pairs: cloth edges through
+    cloth faces they do not share a vertex with (when self_collision), plus cloth edges
+    through obstacle faces and obstacle edges through cloth faces."""
+    x, faces, edges, ob, ob_faces, ob_edges = prepare_inputs(x, faces, edges, ob, ob_faces, ob_edges)
+    check_finite(x, "cloth positions")
+    n_self = len(edge_face_intersections(x, edges, x, faces, True)) if self_collision else 0
+    n_ob = 0
+    if len(ob) and len(ob_faces):
+        n_ob += len(edge_face_intersections(x, edges, ob, ob_faces, False))
+        n_ob += len(edge_face_intersections(ob, ob_edges, x, faces, False))
+    return int(n_self), int(n_ob)
+
+
+# --------------------------------------------------------------------------- distances
+@jit
+def nearest_faces(points, xf, faces, order, child, first, count, nlo, nhi, lo, hi):
+    """Nearest face of every point by best-first BVH descent with box-distance pruning:
+    returns distance [N], face id [N] and barycentrics [N,3] of the closest point."""
+    n = points.shape[0]
+    dist = np.full(n, np.inf)
+    face = np.full(n, -1, np.int64)
+    bary = np.zeros((n, 3))
+    stack = np.empty(256, np.int64)
+    for i in range(n):
+        p = row(points, i)
+        best2 = np.inf
+        stack[0] = 0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            if _box_dist2(nlo, nhi, node, p) >= best2:
+                continue
+            if child[node, 0] < 0:
+                for j in range(first[node], first[node] + count[node]):
+                    f = order[j]
+                    d, b0, b1, b2 = point_triangle_distance(p, row(xf, faces[f, 0]), row(xf, faces[f, 1]), row(xf, faces[f, 2]))
+                    if d * d < best2:
+                        best2 = d * d
+                        face[i] = f
+                        bary[i, 0] = b0
+                        bary[i, 1] = b1
+                        bary[i, 2] = b2
+                continue
+            a = child[node, 0]
+            b = child[node, 1]
+            if sp + 2 > stack.shape[0]:
+                bigger = np.empty(2 * stack.shape[0], np.int64)
+                bigger[:sp] = stack[:sp]
+                stack = bigger
+            # push the farther child first so that the nearer one is searched first
+            if _box_dist2(nlo, nhi, a, p) < _box_dist2(nlo, nhi, b, p):
+                stack[sp] = b
+                stack[sp + 1] = a
+            else:
+                stack[sp] = a
+                stack[sp + 1] = b
+            sp += 2
+        dist[i] = np.sqrt(best2)
+    return dist, face, bary
+
+
+def _nearest(x: np.ndarray, ob: np.ndarray, ob_faces: np.ndarray):
+    tree = BVH.build(*element_boxes(ob, ob_faces, 0.0))
+    return nearest_faces(x, ob, ob_faces, *tree.arrays())
+
+
+def min_obstacle_distance(x: Any, ob: Any, ob_faces: Any) -> float:
+    """Smallest unsigned distance (m) from a cloth vertex to the obstacle surface (inf
+    without obstacle)."""
+    x = as_points(x, "cloth positions")
+    ob = as_points(ob if ob is not None else np.zeros((0, 3)), "obstacle positions")
+    if len(ob) == 0 or len(x) == 0:
+        return float("inf")
+    ob_faces = as_index(ob_faces, 3, "obstacle faces", len(ob))
+    if len(ob_faces) == 0:
+        return float("inf")
+    return float(_nearest(x, ob, ob_faces)[0].min())
+
+
+def signed_obstacle_distance(x: Any, ob: Any, ob_faces: Any, ob_normals: Any = None) -> np.ndarray:
+    """Signed distance [N] from every cloth vertex to the obstacle surface, negative inside.
+    The sign comes from the outward pseudonormal of the nearest feature (face, edge or
+    vertex, which is exact for closed meshes); pass `ob_normals` [Fo,3] to use given face
+    normals of the nearest face instead."""
+    x = as_points(x, "cloth positions")
+    ob = as_points(ob if ob is not None else np.zeros((0, 3)), "obstacle positions")
+    if len(ob) == 0:
+        return np.full(len(x), np.inf)
+    ob_faces = as_index(ob_faces, 3, "obstacle faces", len(ob))
+    dist, face, bary = _nearest(x, ob, ob_faces)
+    q = np.einsum("nk,nkd->nd", bary, ob[ob_faces[face]])
+    if ob_normals is not None:
+        normal = as_points(ob_normals, "obstacle face normals")[face]
+    else:
+        normal = _pseudonormal(ob, ob_faces, face, bary)
+    side = np.sign(np.sum((x - q) * normal, 1))
+    side[side == 0] = 1.0
+    return side * dist
+
+
+def _pseudonormal(ob: np.ndarray, ob_faces: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Pseudonormal of the feature of `face` holding the closest point: the face normal in
+    the interior, the edge or vertex pseudonormal on its boundary."""
+    nf = face_normals(ob, ob_faces)
+    out = nf[face].copy()
+    zero = bary == 0.0
+    n_zero = zero.sum(1)
+    on_vertex = n_zero == 2
+    if on_vertex.any():
+        corner = np.argmax(bary[on_vertex], 1)
+        out[on_vertex] = vertex_normals(ob, ob_faces)[ob_faces[face[on_vertex], corner]]
+    on_edge = n_zero == 1
+    if on_edge.any():
+        edges = np.unique(np.sort(np.concatenate([ob_faces[:, [0, 1]], ob_faces[:, [1, 2]], ob_faces[:, [2, 0]]]), 1), axis=0)
+        fe = face_edge_ids(ob_faces, edges)
+        slot = (np.argmax(zero[on_edge], 1) + 1) % 3  # edge (v_k, v_k+1) lies opposite corner k+2
+        out[on_edge] = edge_normals(ob, ob_faces, edges)[fe[face[on_edge], slot]]
+    return out
