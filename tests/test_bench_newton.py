@@ -18,6 +18,7 @@ from tryon.bench.newton_ref import (
     max_edge_stretch,
     newton_available,
     run_newton_hanging,
+    wang_stiffness_at,
 )
 from tryon.errors import SceneError, TryonError
 from tryon.sim.mesh import grid_corner, grid_mesh
@@ -64,14 +65,28 @@ def test_max_edge_stretch():
     assert max_edge_stretch(stretched, x, faces) == pytest.approx(1.2)
 
 
+def test_wang_stiffness_samples():
+    # zero strain: row 0 of gray-interlock.json doubled, the negative coupling clamped to 0
+    np.testing.assert_allclose(wang_stiffness_at(0.0), (33.187664, 0.0, 68.954246, 73.720604))
+    # at and beyond 1/6 strain: the 0, 90, 90 and 45 degree rows (rows 1, 5, 5, 3) doubled
+    at_sixth = (92.72953, 171.697174, 811.745666, 88.435142)
+    np.testing.assert_allclose(wang_stiffness_at(1.0 / 6.0), at_sixth)
+    np.testing.assert_allclose(wang_stiffness_at(0.5), at_sixth)
+    # linear in between
+    mid = 0.5 * (np.array(wang_stiffness_at(0.0)) + np.array(at_sixth))
+    np.testing.assert_allclose(np.array(wang_stiffness_at(1.0 / 12.0))[[0, 2, 3]], mid[[0, 2, 3]])
+
+
 def test_gray_interlock_mapping():
     p = gray_interlock_newton_params(16)
-    # ARCSim doubles the zero-strain row of gray-interlock.json: k0 = 2 * 16.59, k2 = 2 * 34.48, k3 = 2 * 36.86
-    np.testing.assert_allclose(p["style3d_tri_aniso_ke"], (33.187664, 68.954246, 36.860302))
+    k0, k1, k2, k3 = wang_stiffness_at(0.02)
+    assert p["operating_strain"] == 0.02
+    assert k2 == pytest.approx(2.0 * (34.477123 + 0.12 * (405.872833 - 34.477123)))
+    np.testing.assert_allclose(p["style3d_tri_aniso_ke"], (k0, k2, 0.5 * k3))
     assert p["density_kg_m2"] == pytest.approx(0.187)
-    # VBD: lambda = k1 = 0 (gray-interlock's negative coupling is clamped), mu = mean of k0/2, k2/2, k3/2
-    assert p["vbd_tri_ka"] == 0.0
-    assert p["vbd_tri_ke"] == pytest.approx((33.187664 + 68.954246 + 73.720604) / 6.0)
+    # VBD: lambda = k1 (clamped to 0 at 2 %), mu = mean of k0/2, k2/2, k3/2
+    assert k1 == 0.0 and p["vbd_tri_ka"] == 0.0
+    assert p["vbd_tri_ke"] == pytest.approx((k0 + k2 + k3) / 6.0)
     # Bergou bending k = ARCSim ke / 12; Style3D's order is (edge along v, edge along u, diagonal)
     np.testing.assert_allclose(p["style3d_edge_aniso_ke"], np.array([1.4267624e-05, 2.3191698e-05, 2.4749964e-05]) / 12)
     # ke / (4 h) with h = 1/15: a finer grid gets a proportionally larger per-length stiffness

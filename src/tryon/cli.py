@@ -9,6 +9,8 @@ from pathlib import Path
 
 from tryon.errors import TryonError
 
+DEFAULT_GRIDS = [16, 32, 64, 128]
+
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from tryon.sim.runner import run_scene
@@ -72,7 +74,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         run_sim_bench(args.json, quick=args.quick, threads=args.threads, grids=args.grids)
         return 0
-    raise TryonError(f"unknown benchmark {args.what!r}; available: sim")
+    if args.what == "robustness":
+        from tryon.bench.robustness import run_robustness_bench
+
+        grid = args.grids[0] if args.grids != DEFAULT_GRIDS else 16
+        run_robustness_bench(args.json, resolution=grid, duration=0.2 if args.quick else 0.5)
+        return 0
+    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -99,11 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(func=_cmd_fabrics)
 
     b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")
-    b.add_argument("what", choices=["sim"])
-    b.add_argument("--json", default="bench_sim.json", help="output JSON path")
+    b.add_argument("what", choices=["sim", "robustness"])
+    b.add_argument("--json", default="bench.json", help="output JSON path")
     b.add_argument("--quick", action="store_true", help="fewer steps (smoke run)")
     b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    b.add_argument("--grids", type=int, nargs="+", default=[16, 32, 64, 128])
+    b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
+                   help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.set_defaults(func=_cmd_bench)
     return p
 

@@ -121,10 +121,28 @@ def run_sim_bench(out_json: str | Path, quick: bool = False, threads: list[int] 
                     rec["speedup_vs_newton_style3d"] = newton / rec["s_per_step"]
             records.append(rec)
             _print_row(rec)
+    _compare_with_newton(records, grids, quick)
     with atomic_write(out_json) as fh:
         json.dump(records, fh, indent=2)
     print(f"wrote {out_json}")
     return records
+
+
+def _compare_with_newton(records: list[dict], grids: list[int], quick: bool) -> None:
+    """With the optional `newton` package installed, time Newton's Style3D cloth solver on the
+    same hanging cloth in this process and add the ratio to our 1-thread records."""
+    from tryon.bench.newton_ref import newton_available, run_newton_hanging
+
+    if not newton_available():
+        print("newton not installed: ratios use the Newton anchors (pip install 'tryon[newton]' to measure it here)")
+        return
+    for grid in grids:
+        ref = run_newton_hanging(grid, frames=3 if quick else 25)
+        for rec in records:
+            if rec["scene"] == "hanging" and rec["grid"] == f"{grid}x{grid}" and "s_per_step" in rec:
+                rec["newton_measured"] = ref
+                rec["speedup_vs_newton_measured"] = ref["s_per_frame_median"] / rec["s_per_step"]
+        print(f"newton style3d {grid}x{grid}: {ref['s_per_frame_median'] * 1000:.1f} ms per 0.01 s frame (measured here)")
 
 
 def _print_row(r: dict) -> None:

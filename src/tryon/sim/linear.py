@@ -108,10 +108,10 @@ def add_diagonal_blocks(blocks, diag_block, vertices, block_values):
                 blocks[dst, i, j] += block_values[q, i, j]
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True)
 def bsr_matvec(indptr, indices, blocks, x, out):
     n = indptr.shape[0] - 1
-    for r in nb.prange(n):
+    for r in range(n):
         s0 = 0.0
         s1 = 0.0
         s2 = 0.0
@@ -128,9 +128,9 @@ def bsr_matvec(indptr, indices, blocks, x, out):
         out[r, 2] = s2
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True)
 def _apply_block_precond(pinv, free, r, z):
-    for i in nb.prange(r.shape[0]):
+    for i in range(r.shape[0]):
         if free[i]:
             for a in range(3):
                 z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2]
@@ -140,10 +140,10 @@ def _apply_block_precond(pinv, free, r, z):
             z[i, 2] = 0.0
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True)
 def _dot(a, b):
     s = 0.0
-    for i in nb.prange(a.shape[0]):
+    for i in range(a.shape[0]):
         s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
     return s
 

@@ -15,7 +15,9 @@ from typing import Any
 import numpy as np
 
 from tryon.sim.collision.bvh import BVH, swept_boxes, swept_point_boxes, overlapping_pairs
+from tryon.errors import MeshError
 from tryon.sim.collision.contacts import (
+    check_thickness,
     EE_OBSTACLE,
     EE_SELF,
     FV_OBSTACLE,
@@ -42,7 +44,8 @@ from tryon.sim.collision.primitives import (
     sub,
     combine3,
 )
-from tryon.sim.collision.proximity import obstacle_id, prepare_inputs, vf_ids
+from tryon.sim.collision.bvh import _grow as grow
+from tryon.sim.collision.proximity import grow_buffers, make_contacts, new_buffers, obstacle_id, prepare_inputs, store, vf_ids
 
 # distance (m) at a coplanarity time below which two primitives count as touching
 CCD_EPS = 1e-6
@@ -68,15 +71,12 @@ def _weighted(w0, w1, w2, w3, a, b, c, d):
 @jit
 def vf_ccd(pairs, xv0, xv1, xf0, xf1, faces, same, eps):
     """Earliest vertex-face impact of each candidate pair (vertex id, face id): returns
-    keep [K], toi [K], weights [K,4], normals [K,3], gaps at toi [K]."""
-    k = pairs.shape[0]
-    keep = np.zeros(k, np.bool_)
-    toi = np.zeros(k)
-    w = np.zeros((k, 4))
-    n_out = np.zeros((k, 3))
-    d_out = np.zeros(k)
+    the impacts as (pair index [M], weights [M,4], normals [M,3], gaps at toi [M], toi [M])."""
+    sel, w, n_out, d_out = new_buffers(pairs.shape[0])
+    toi = np.empty(sel.shape[0])
+    m = 0
     ts = np.empty(8)
-    for c in range(k):
+    for c in range(pairs.shape[0]):
         v = pairs[c, 0]
         f = pairs[c, 1]
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -106,32 +106,25 @@ def vf_ccd(pairs, xv0, xv1, xf0, xf1, faces, same, eps):
             gap0 = dot(n, sub(p0, combine3(u0, u1, u2, a0, b0, q0)))
             sgn = _orient(n, rel, gap0)
             n = scale(n, sgn)
-            keep[c] = True
-            toi[c] = t
-            w[c, 0] = 1.0
-            w[c, 1] = -u0
-            w[c, 2] = -u1
-            w[c, 3] = -u2
-            n_out[c, 0] = n[0]
-            n_out[c, 1] = n[1]
-            n_out[c, 2] = n[2]
-            d_out[c] = dot(n, sub(p, combine3(u0, u1, u2, a, b, q)))
+            if m == sel.shape[0]:
+                sel, w, n_out, d_out = grow_buffers(sel, w, n_out, d_out)
+                toi = grow(toi)
+            store(m, c, (1.0, -u0, -u1, -u2), n, dot(n, sub(p, combine3(u0, u1, u2, a, b, q))), sel, w, n_out, d_out)
+            toi[m] = t
+            m += 1
             break
-    return keep, toi, w, n_out, d_out
+    return sel[:m], w[:m], n_out[:m], d_out[:m], toi[:m]
 
 
 @jit
 def ee_ccd(pairs, xa0, xa1, ea, xb0, xb1, eb, same, eps):
     """Earliest edge-edge impact of each candidate pair (edge id in ea, edge id in eb);
     outputs as `vf_ccd`."""
-    k = pairs.shape[0]
-    keep = np.zeros(k, np.bool_)
-    toi = np.zeros(k)
-    w = np.zeros((k, 4))
-    n_out = np.zeros((k, 3))
-    d_out = np.zeros(k)
+    sel, w, n_out, d_out = new_buffers(pairs.shape[0])
+    toi = np.empty(sel.shape[0])
+    m = 0
     ts = np.empty(8)
-    for c in range(k):
+    for c in range(pairs.shape[0]):
         e = pairs[c, 0]
         g = pairs[c, 1]
         i0, i1 = ea[e, 0], ea[e, 1]
@@ -169,21 +162,18 @@ def ee_ccd(pairs, xa0, xa1, ea, xb0, xb1, eb, same, eps):
             rel = _weighted(ww[0], ww[1], ww[2], ww[3], sub(p1, p0), sub(r1, r0), sub(q1, q0), sub(s1, s0))
             gap0 = dot(n, _weighted(ww[0], ww[1], ww[2], ww[3], p0, r0, q0, s0))
             n = scale(n, _orient(n, rel, gap0))
-            keep[c] = True
-            toi[c] = t
-            for m in range(4):
-                w[c, m] = ww[m]
-            n_out[c, 0] = n[0]
-            n_out[c, 1] = n[1]
-            n_out[c, 2] = n[2]
-            d_out[c] = dot(n, diff)
+            if m == sel.shape[0]:
+                sel, w, n_out, d_out = grow_buffers(sel, w, n_out, d_out)
+                toi = grow(toi)
+            store(m, c, ww, n, dot(n, diff), sel, w, n_out, d_out)
+            toi[m] = t
+            m += 1
             break
-    return keep, toi, w, n_out, d_out
+    return sel[:m], w[:m], n_out[:m], d_out[:m], toi[:m]
 
 
-def _impacts(keep, toi, w, n, d, idx: np.ndarray, kind: int) -> Contacts:
-    m = int(keep.sum())
-    return Contacts(idx[keep], w[keep], n[keep], d[keep], np.full(m, kind, np.int8), toi[keep])
+def _impacts(out: tuple, pairs: np.ndarray, ids_of, kind: int) -> Contacts:
+    return make_contacts(out[:4], pairs, ids_of, kind, out[4])
 
 
 def find_impacts(
@@ -211,15 +201,13 @@ def find_impacts(
     x1 = as_points(x1, "cloth end positions")
     ob1 = as_points(ob1 if ob1 is not None else np.zeros((0, 3)), "obstacle end positions")
     if x1.shape != x0.shape or ob1.shape != ob0.shape:
-        from tryon.errors import MeshError
-
         raise MeshError(
             f"start and end positions differ in shape: cloth {list(x0.shape)} vs {list(x1.shape)}, "
             f"obstacle {list(ob0.shape)} vs {list(ob1.shape)}"
         )
     for a, name in ((x0, "cloth start positions"), (x1, "cloth end positions"), (ob0, "obstacle start positions"), (ob1, "obstacle end positions")):
         check_finite(a, name)
-    eps = float(min(eps, 0.1 * thickness)) if thickness > 0 else float(eps)
+    eps = min(float(eps), 0.1 * check_thickness(thickness))
     margin = eps
     verts = BVH.build(*swept_point_boxes(x0, x1, margin))
     tris = BVH.build(*swept_boxes(x0, x1, faces, 0.0))
@@ -228,24 +216,24 @@ def find_impacts(
     if self_collision:
         p = overlapping_pairs(verts, tris)
         out = vf_ccd(p, x0, x1, x0, x1, faces, True, eps)
-        parts.append(_impacts(*out, vf_ids(p[:, 0], faces[p[:, 1]]), VF_SELF))
+        parts.append(_impacts(out, p, lambda q: vf_ids(q[:, 0], faces[q[:, 1]]), VF_SELF))
         p = overlapping_pairs(segs)
         out = ee_ccd(p, x0, x1, edges, x0, x1, edges, True, eps)
-        parts.append(_impacts(*out, np.concatenate([edges[p[:, 0]], edges[p[:, 1]]], 1), EE_SELF))
+        parts.append(_impacts(out, p, lambda q: np.concatenate([edges[q[:, 0]], edges[q[:, 1]]], 1), EE_SELF))
     if len(ob0) and len(ob_faces):
         ob_tris = BVH.build(*swept_boxes(ob0, ob1, ob_faces, 0.0))
         p = overlapping_pairs(verts, ob_tris)
         out = vf_ccd(p, x0, x1, ob0, ob1, ob_faces, False, eps)
-        parts.append(_impacts(*out, vf_ids(p[:, 0], obstacle_id(ob_faces[p[:, 1]])), VF_OBSTACLE))
-        used = np.unique(ob_faces)
+        parts.append(_impacts(out, p, lambda q: vf_ids(q[:, 0], obstacle_id(ob_faces[q[:, 1]])), VF_OBSTACLE))
+        used = np.flatnonzero(np.bincount(ob_faces.ravel(), minlength=len(ob0)))
         ob_verts = BVH.build(*swept_point_boxes(ob0[used], ob1[used], margin))
         p = overlapping_pairs(ob_verts, tris)
         out = vf_ccd(p, ob0[used], ob1[used], x0, x1, faces, False, eps)
-        parts.append(_impacts(*out, vf_ids(obstacle_id(used[p[:, 0]]), faces[p[:, 1]]), FV_OBSTACLE))
+        parts.append(_impacts(out, p, lambda q: vf_ids(obstacle_id(used[q[:, 0]]), faces[q[:, 1]]), FV_OBSTACLE))
         if len(ob_edges):
             ob_segs = BVH.build(*swept_boxes(ob0, ob1, ob_edges, 0.5 * margin))
             p = overlapping_pairs(segs, ob_segs)
             out = ee_ccd(p, x0, x1, edges, ob0, ob1, ob_edges, False, eps)
-            ids = np.concatenate([edges[p[:, 0]], obstacle_id(ob_edges[p[:, 1]])], 1)
-            parts.append(_impacts(*out, ids, EE_OBSTACLE))
+            ids_of = lambda q: np.concatenate([edges[q[:, 0]], obstacle_id(ob_edges[q[:, 1]])], 1)  # noqa: E731
+            parts.append(_impacts(out, p, ids_of, EE_OBSTACLE))
     return Contacts.concatenate(parts)

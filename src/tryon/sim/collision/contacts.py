@@ -124,3 +124,10 @@ def as_index(a: Any, width: int, name: str, n_vertices: int) -> np.ndarray:
 def check_finite(a: np.ndarray, name: str) -> None:
     if not np.all(np.isfinite(a)):
         raise MeshError(f"{name}: positions contain NaN or infinity; fix the input (or retry the step with a smaller dt)")
+
+
+def check_thickness(thickness: Any) -> float:
+    h = float(thickness)
+    if not (np.isfinite(h) and h > 0):
+        raise MeshError(f"collision thickness must be a positive number of metres, got {thickness!r}")
+    return h

@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from tryon.sim.collision.primitives import cross, dot, jit, norm, row, scale, sub
 
 
 def face_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -62,3 +66,61 @@ def edge_normals(x: np.ndarray, faces: np.ndarray, edges: np.ndarray) -> np.ndar
         ok = fe[:, k] >= 0
         np.add.at(out, fe[ok, k], nf[ok])
     return _unit(out)
+
+
+# --------------------------------------------------------------------------- fast path
+_FACE_EDGE_CACHE: dict = {}
+
+
+def cached_face_edge_ids(faces: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """`face_edge_ids`, memoised on the topology (obstacle topology is fixed in a run)."""
+    key = (faces.shape, edges.shape, hash(faces.tobytes()), hash(edges.tobytes()))
+    fe = _FACE_EDGE_CACHE.get(key)
+    if fe is None:
+        if len(_FACE_EDGE_CACHE) >= 8:
+            _FACE_EDGE_CACHE.pop(next(iter(_FACE_EDGE_CACHE)))
+        fe = np.ascontiguousarray(face_edge_ids(faces, edges))
+        _FACE_EDGE_CACHE[key] = fe
+    return fe
+
+
+@jit
+def _pseudonormals(x, faces, fe, n_edges):
+    """Angle-weighted vertex normals [N,3] and edge normals [E,3] (sum of adjacent unit face
+    normals), both normalised; zero for vertices / edges without faces."""
+    vn = np.zeros((x.shape[0], 3))
+    en = np.zeros((n_edges, 3))
+    for f in range(faces.shape[0]):
+        a, b, c = row(x, faces[f, 0]), row(x, faces[f, 1]), row(x, faces[f, 2])
+        nn = cross(sub(b, a), sub(c, a))
+        length = norm(nn)
+        if length <= 0.0:
+            continue
+        n = scale(nn, 1.0 / length)
+        pts = (a, b, c)
+        for k in range(3):
+            p = pts[k]
+            u = sub(pts[(k + 1) % 3], p)
+            v = sub(pts[(k + 2) % 3], p)
+            cos = dot(u, v) / max(norm(u) * norm(v), 1e-300)
+            angle = math.acos(min(max(cos, -1.0), 1.0))
+            i = faces[f, k]
+            for d in range(3):
+                vn[i, d] += angle * n[d]
+            e = fe[f, k]
+            if e >= 0:
+                for d in range(3):
+                    en[e, d] += n[d]
+    for out in (vn, en):
+        for i in range(out.shape[0]):
+            length = norm(row(out, i))
+            if length > 0.0:
+                for d in range(3):
+                    out[i, d] /= length
+    return vn, en
+
+
+def obstacle_normals(ob: np.ndarray, ob_faces: np.ndarray, ob_edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Outward vertex and edge pseudonormals of the obstacle soup."""
+    fe = cached_face_edge_ids(ob_faces, ob_edges)
+    return _pseudonormals(ob, ob_faces, fe, len(ob_edges))

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from tryon.sim.collision.bvh import BVH, element_boxes, overlapping_pairs, point_boxes
+from tryon.sim.collision.bvh import _grow as grow
 from tryon.sim.collision.contacts import (
     EE_OBSTACLE,
     EE_SELF,
@@ -29,8 +30,9 @@ from tryon.sim.collision.contacts import (
     as_index,
     as_points,
     check_finite,
+    check_thickness,
 )
-from tryon.sim.collision.geometry import edge_normals, vertex_normals
+from tryon.sim.collision.geometry import obstacle_normals
 from tryon.sim.collision.primitives import (
     INSIDE_TOL,
     closest_points_lines,
@@ -54,14 +56,11 @@ ORIENT_COS = 1e-3
 
 @jit
 def vf_proximity(pairs, xv, xf, faces, thickness, mode, ob_vnormals):
-    """Vertex-face proximity for candidate pairs (vertex id in xv, face id): returns
-    keep [K] bool, weights [K,4], normals [K,3], gaps [K]."""
-    k = pairs.shape[0]
-    keep = np.zeros(k, np.bool_)
-    w = np.zeros((k, 4))
-    n_out = np.zeros((k, 3))
-    d_out = np.zeros(k)
-    for c in range(k):
+    """Vertex-face proximity for candidate pairs (vertex id in xv, face id): returns the
+    contacts found as (pair index [M], weights [M,4], normals [M,3], gaps [M])."""
+    sel, w, n_out, d_out = new_buffers(pairs.shape[0])
+    m = 0
+    for c in range(pairs.shape[0]):
         v = pairs[c, 0]
         f = pairs[c, 1]
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -79,32 +78,27 @@ def vf_proximity(pairs, xv, xf, faces, thickness, mode, ob_vnormals):
         elif mode == MODE_OBSTACLE_VERTEX_CLOTH_FACE:
             # the cloth is outside the obstacle: n must point from the cloth to the obstacle
             # vertex, i.e. against the vertex's outward pseudonormal
-            s = dot(n, row(ob_vnormals, v))
+            vnorm = row(ob_vnormals, v)
+            if vnorm[0] == 0.0 and vnorm[1] == 0.0 and vnorm[2] == 0.0:
+                continue  # an obstacle vertex on no face
+            s = dot(n, vnorm)
             if s > ORIENT_COS or (s >= -ORIENT_COS and h < 0.0):
                 n = scale(n, -1.0)
                 h = -h
-        keep[c] = True
-        w[c, 0] = 1.0
-        w[c, 1] = -b0
-        w[c, 2] = -b1
-        w[c, 3] = -b2
-        n_out[c, 0] = n[0]
-        n_out[c, 1] = n[1]
-        n_out[c, 2] = n[2]
-        d_out[c] = h
-    return keep, w, n_out, d_out
+        if m == sel.shape[0]:
+            sel, w, n_out, d_out = grow_buffers(sel, w, n_out, d_out)
+        store(m, c, (1.0, -b0, -b1, -b2), n, h, sel, w, n_out, d_out)
+        m += 1
+    return sel[:m], w[:m], n_out[:m], d_out[:m]
 
 
 @jit
 def ee_proximity(pairs, xa, ea, xb, eb, thickness, mode, ob_enormals):
     """Edge-edge proximity for candidate pairs (edge id in ea, edge id in eb); same
     outputs as `vf_proximity`. mode SELF: xb is xa and eb is ea."""
-    k = pairs.shape[0]
-    keep = np.zeros(k, np.bool_)
-    w = np.zeros((k, 4))
-    n_out = np.zeros((k, 3))
-    d_out = np.zeros(k)
-    for c in range(k):
+    sel, w, n_out, d_out = new_buffers(pairs.shape[0])
+    m = 0
+    for c in range(pairs.shape[0]):
         e = pairs[c, 0]
         g = pairs[c, 1]
         a0, a1 = ea[e, 0], ea[e, 1]
@@ -136,16 +130,32 @@ def ee_proximity(pairs, xa, ea, xb, eb, thickness, mode, ob_enormals):
         if flip:
             n = scale(n, -1.0)
             h = -h
-        keep[c] = True
-        w[c, 0] = 1.0 - s
-        w[c, 1] = s
-        w[c, 2] = -(1.0 - t)
-        w[c, 3] = -t
-        n_out[c, 0] = n[0]
-        n_out[c, 1] = n[1]
-        n_out[c, 2] = n[2]
-        d_out[c] = h
-    return keep, w, n_out, d_out
+        if m == sel.shape[0]:
+            sel, w, n_out, d_out = grow_buffers(sel, w, n_out, d_out)
+        store(m, c, (1.0 - s, s, -(1.0 - t), -t), n, h, sel, w, n_out, d_out)
+        m += 1
+    return sel[:m], w[:m], n_out[:m], d_out[:m]
+
+
+@jit
+def new_buffers(n_candidates):
+    cap = max(16, n_candidates // 8)
+    return np.empty(cap, np.int64), np.empty((cap, 4)), np.empty((cap, 3)), np.empty(cap)
+
+
+@jit
+def grow_buffers(sel, w, n, d):
+    return grow(sel), grow(w), grow(n), grow(d)
+
+
+@jit
+def store(m, c, ww, n, d, sel, w, n_out, d_out):
+    sel[m] = c
+    for k in range(4):
+        w[m, k] = ww[k]
+    for k in range(3):
+        n_out[m, k] = n[k]
+    d_out[m] = d
 
 
 # --------------------------------------------------------------------------- assembly
@@ -154,11 +164,13 @@ def obstacle_id(i: np.ndarray) -> np.ndarray:
     return -np.asarray(i, np.int64) - 1
 
 
-def make_contacts(keep, w, n, d, idx: np.ndarray, kind: int, time: np.ndarray | None = None) -> Contacts:
-    """Contacts from kernel outputs: the kept rows, ids idx [K,4] (already global)."""
-    m = int(keep.sum())
-    t = np.zeros(m) if time is None else time[keep]
-    return Contacts(idx[keep], w[keep], n[keep], d[keep], np.full(m, kind, np.int8), t)
+def make_contacts(out: tuple, pairs: np.ndarray, ids_of, kind: int, time: np.ndarray | None = None) -> Contacts:
+    """Contacts from a kernel's outputs (sel, w, n, d): `ids_of(pairs[sel])` gives their
+    global point ids [M,4]."""
+    sel, w, n, d = out
+    m = len(sel)
+    t = np.zeros(m) if time is None else time
+    return Contacts(np.ascontiguousarray(ids_of(pairs[sel]), dtype=np.int64), w, n, d, np.full(m, kind, np.int8), t)
 
 
 def vf_ids(vertex_ids: np.ndarray, face_vertex_ids: np.ndarray) -> np.ndarray:
@@ -193,7 +205,7 @@ def find_proximities(
     x, faces, edges, ob, ob_faces, ob_edges = prepare_inputs(x, faces, edges, ob, ob_faces, ob_edges)
     check_finite(x, "cloth positions")
     check_finite(ob, "obstacle positions")
-    h = float(thickness)
+    h = check_thickness(thickness)
     none3 = np.zeros((1, 3))
     verts = BVH.build(*point_boxes(x, h))
     tris = BVH.build(*element_boxes(x, faces, 0.0))
@@ -202,26 +214,24 @@ def find_proximities(
     if self_collision:
         p = overlapping_pairs(verts, tris)
         out = vf_proximity(p, x, x, faces, h, MODE_SELF, none3)
-        parts.append(make_contacts(*out, vf_ids(p[:, 0], faces[p[:, 1]]), VF_SELF))
+        parts.append(make_contacts(out, p, lambda q: vf_ids(q[:, 0], faces[q[:, 1]]), VF_SELF))
         p = overlapping_pairs(segs)
         out = ee_proximity(p, x, edges, x, edges, h, MODE_SELF, none3)
-        parts.append(make_contacts(*out, np.concatenate([edges[p[:, 0]], edges[p[:, 1]]], 1), EE_SELF))
+        parts.append(make_contacts(out, p, lambda q: np.concatenate([edges[q[:, 0]], edges[q[:, 1]]], 1), EE_SELF))
     if len(ob) and len(ob_faces):
+        ob_vn, ob_en = obstacle_normals(ob, ob_faces, ob_edges)
         ob_tris = BVH.build(*element_boxes(ob, ob_faces, 0.0))
         p = overlapping_pairs(verts, ob_tris)
         out = vf_proximity(p, x, ob, ob_faces, h, MODE_CLOTH_VERTEX_OBSTACLE_FACE, none3)
-        parts.append(make_contacts(*out, vf_ids(p[:, 0], obstacle_id(ob_faces[p[:, 1]])), VF_OBSTACLE))
-        used = np.unique(ob_faces)
-        ob_verts = BVH.build(*point_boxes(ob[used], h))
+        parts.append(make_contacts(out, p, lambda q: vf_ids(q[:, 0], obstacle_id(ob_faces[q[:, 1]])), VF_OBSTACLE))
+        ob_verts = BVH.build(*point_boxes(ob, h))
         p = overlapping_pairs(ob_verts, tris)
-        vn = vertex_normals(ob, ob_faces)[used]
-        out = vf_proximity(p, ob[used], x, faces, h, MODE_OBSTACLE_VERTEX_CLOTH_FACE, vn)
-        parts.append(make_contacts(*out, vf_ids(obstacle_id(used[p[:, 0]]), faces[p[:, 1]]), FV_OBSTACLE))
+        out = vf_proximity(p, ob, x, faces, h, MODE_OBSTACLE_VERTEX_CLOTH_FACE, ob_vn)
+        parts.append(make_contacts(out, p, lambda q: vf_ids(obstacle_id(q[:, 0]), faces[q[:, 1]]), FV_OBSTACLE))
         if len(ob_edges):
             ob_segs = BVH.build(*element_boxes(ob, ob_edges, 0.5 * h))
             p = overlapping_pairs(segs, ob_segs)
-            en = edge_normals(ob, ob_faces, ob_edges)
-            out = ee_proximity(p, x, edges, ob, ob_edges, h, MODE_CLOTH_VERTEX_OBSTACLE_FACE, en)
-            ids = np.concatenate([edges[p[:, 0]], obstacle_id(ob_edges[p[:, 1]])], 1)
-            parts.append(make_contacts(*out, ids, EE_OBSTACLE))
+            out = ee_proximity(p, x, edges, ob, ob_edges, h, MODE_CLOTH_VERTEX_OBSTACLE_FACE, ob_en)
+            ids_of = lambda q: np.concatenate([edges[q[:, 0]], obstacle_id(ob_edges[q[:, 1]])], 1)  # noqa: E731
+            parts.append(make_contacts(out, p, ids_of, EE_OBSTACLE))
     return Contacts.concatenate(parts)

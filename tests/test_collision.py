@@ -1,0 +1,437 @@
+"""Collision detection and response (tryon.sim.collision) against brute-force references,
+dense time sampling and known answers."""
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from tryon.errors import MeshError
+from tryon.sim import collision as col
+from tryon.sim.collision import primitives as prim
+from tryon.sim.collision.bvh import BVH, element_boxes, overlapping_pairs
+
+H = 0.005
+
+
+# --------------------------------------------------------------------------- meshes
+def edges_of(faces):
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(e, 1), axis=0)
+
+
+def sheet(n, size=1.0, z=0.0, shift=(0.0, 0.0)):
+    s = np.linspace(-size / 2, size / 2, n)
+    X, Y = np.meshgrid(s + shift[0], s + shift[1], indexing="xy")
+    x = np.stack([X.ravel(), Y.ravel(), np.full(n * n, float(z))], 1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]).astype(np.int64)
+    return x, faces, edges_of(faces)
+
+
+def merge(*meshes):
+    xs, fs, off = [], [], 0
+    for x, f, _ in meshes:
+        xs.append(x)
+        fs.append(f + off)
+        off += len(x)
+    f = np.concatenate(fs)
+    return np.concatenate(xs), f, edges_of(f)
+
+
+def ground(size=2.0, z=0.0):
+    x, f, e = sheet(5, size, z)
+    return x, f, e  # counter-clockwise seen from +z: outward normal up
+
+
+def ball(center, radius, subdivisions=2):
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    f = np.asarray(m.faces, np.int64)
+    return np.asarray(m.vertices) + np.asarray(center, float), f, edges_of(f)
+
+
+def no_obstacle():
+    return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64)
+
+
+# --------------------------------------------------------------------------- primitives
+def test_point_triangle_distance_matches_dense_sampling():
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.linspace(0, 1, 301), np.linspace(0, 1, 301))
+    keep = u + v <= 1
+    u, v = u[keep], v[keep]
+    for _ in range(20):
+        a, b, c = rng.normal(size=(3, 3))
+        p = rng.normal(size=3) * 1.5
+        samples = a + u[:, None] * (b - a) + v[:, None] * (c - a)
+        ref = np.linalg.norm(samples - p, axis=1).min()
+        d, b0, b1, b2 = prim.point_triangle_distance(tuple(p), tuple(a), tuple(b), tuple(c))
+        assert d <= ref + 1e-12
+        assert d == pytest.approx(ref, abs=2e-2 * np.linalg.norm(b - a) / 30 + 1e-3)
+        q = b0 * a + b1 * b + b2 * c
+        assert np.linalg.norm(p - q) == pytest.approx(d, abs=1e-12)
+        assert min(b0, b1, b2) >= 0 and b0 + b1 + b2 == pytest.approx(1.0)
+
+
+def test_point_triangle_known_answers():
+    a, b, c = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+    assert prim.point_triangle_distance((0.2, 0.3, 0.5), a, b, c)[0] == pytest.approx(0.5)
+    assert prim.point_triangle_distance((-1.0, -1.0, 0.0), a, b, c)[0] == pytest.approx(np.sqrt(2))
+    d, b0, b1, b2 = prim.point_triangle_distance((1.0, 1.0, 0.0), a, b, c)
+    assert d == pytest.approx(np.sqrt(0.5)) and (b1, b2) == pytest.approx((0.5, 0.5))
+
+
+def test_segment_distance_matches_dense_sampling():
+    rng = np.random.default_rng(1)
+    s = np.linspace(0, 1, 2001)
+    for _ in range(30):
+        p0, p1, q0, q1 = rng.normal(size=(4, 3))
+        if rng.random() < 0.2:  # parallel segments
+            q1 = q0 + (p1 - p0) * rng.uniform(0.3, 2)
+        P = p0 + s[:, None] * (p1 - p0)
+        Q = q0 + s[:, None] * (q1 - q0)
+        ref = np.sqrt(((P[:, None] - Q[None]) ** 2).sum(-1).min())
+        d, a, b = prim.segment_distance(tuple(p0), tuple(p1), tuple(q0), tuple(q1))
+        assert d <= ref + 1e-12
+        assert d == pytest.approx(ref, abs=5e-3)
+        pa, pb = p0 + a * (p1 - p0), q0 + b * (q1 - q0)
+        assert np.linalg.norm(pa - pb) == pytest.approx(d, abs=1e-12)
+    d, a, b = prim.segment_distance((0, 0, 0), (1, 0, 0), (0.5, -1, 2), (0.5, 1, 2))
+    assert (d, a, b) == pytest.approx((2.0, 0.5, 0.5))
+
+
+# --------------------------------------------------------------------------- CCD
+def test_ccd_vertex_through_triangle_known_time():
+    tri = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    x0 = np.array([[0.2, 0.2, 0.3]])
+    x1 = np.array([[0.2, 0.2, -0.1]])
+    none = np.zeros((0, 3), np.int64)
+    imp = col.find_impacts(x0, x1, none, np.zeros((0, 2), np.int64), tri, tri, np.array([[0, 1, 2]]), edges_of(np.array([[0, 1, 2]])), H)
+    assert len(imp) == 1 and imp.kind[0] == col.VF_OBSTACLE
+    assert imp.time[0] == pytest.approx(0.75, abs=1e-12)
+    assert imp.n[0] == pytest.approx([0, 0, 1])  # towards the side the vertex came from
+    assert imp.w[0] == pytest.approx([1, -0.6, -0.2, -0.2])
+    assert abs(imp.d[0]) < 1e-9
+    # the same motion, 1 mm to the side of the triangle, is no impact
+    miss0, miss1 = x0 + [0.9, 0.0, 0], x1 + [0.9, 0.0, 0]
+    assert len(col.find_impacts(miss0, miss1, none, np.zeros((0, 2), np.int64), tri, tri, np.array([[0, 1, 2]]), np.zeros((0, 2), np.int64), H)) == 0
+
+
+def test_ccd_edge_crossing_edge_known_time():
+    x0 = np.array([[-1.0, 0, 0], [1, 0, 0], [0.3, -1, 1], [0.3, 1, 1]])
+    x1 = x0.copy()
+    x1[2:, 2] = -3.0  # the second edge drops from z=1 to z=-3: crosses z=0 at t=1/4
+    edges = np.array([[0, 1], [2, 3]])
+    imp = col.find_impacts(x0, x1, np.zeros((0, 3), np.int64), edges, *no_obstacle()[:1], *no_obstacle(), H)
+    assert len(imp) == 1 and imp.kind[0] == col.EE_SELF
+    assert imp.time[0] == pytest.approx(0.25, abs=1e-12)
+    assert imp.w[0] == pytest.approx([1 - 0.65, 0.65, -0.5, -0.5])
+    gap0 = col.Contacts.gaps(imp, x0)
+    assert gap0[0] > 0  # oriented so that the start configuration has a positive gap
+    assert col.Contacts.gaps(imp, x1)[0] < 0
+
+
+def _dense_first_crossing(p0, p1, a0, a1, b0, b1, c0, c1, samples):
+    """Earliest sampled time when the vertex crosses the triangle's plane inside it
+    (barycentrics > 1e-3), from a dense sampling of the signed volume."""
+    t = samples[:, None]
+    p, a, b, c = (u0 + t * (u1 - u0) for u0, u1 in ((p0, p1), (a0, a1), (b0, b1), (c0, c1)))
+    n = np.cross(b - a, c - a)
+    vol = np.sum(n * (p - a), 1)
+    change = np.flatnonzero(np.sign(vol[:-1]) * np.sign(vol[1:]) < 0)
+    for k in change:
+        s = vol[k] / (vol[k] - vol[k + 1])
+        tm = samples[k] + s * (samples[k + 1] - samples[k])
+        pa, aa, ba, ca = (u0 + tm * (u1 - u0) for u0, u1 in ((p0, p1), (a0, a1), (b0, b1), (c0, c1)))
+        nn = np.cross(ba - aa, ca - aa)
+        area2 = np.linalg.norm(nn)
+        w1 = np.dot(np.cross(pa - aa, ca - aa), nn) / area2**2
+        w2 = np.dot(np.cross(ba - aa, pa - aa), nn) / area2**2
+        if min(w1, w2, 1 - w1 - w2) > 1e-3:
+            return samples[k + 1]
+    return None
+
+
+def test_ccd_misses_nothing_on_random_motions():
+    rng = np.random.default_rng(2)
+    m = 400
+    spacing = 20.0  # each vertex/triangle pair lives in its own cell, far from the others
+    offs = np.zeros((m, 3))
+    offs[:, 0] = np.arange(m) * spacing
+    tri0 = rng.uniform(-1, 1, size=(m, 3, 3))
+    tri1 = tri0 + rng.normal(scale=0.6, size=(m, 3, 3)) * (rng.random((m, 1, 1)) < 0.6)
+    # vertices that start on one side and end on the other side of the centroid region
+    cen0, cen1 = tri0.mean(1), tri1.mean(1)
+    p0 = cen0 + rng.normal(scale=0.8, size=(m, 3))
+    p1 = cen1 + rng.normal(scale=0.8, size=(m, 3))
+    ob0 = (tri0 + offs[:, None]).reshape(-1, 3)
+    ob1 = (tri1 + offs[:, None]).reshape(-1, 3)
+    ob_faces = np.arange(3 * m).reshape(m, 3)
+    imp = col.find_impacts(p0 + offs, p1 + offs, np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64), ob0, ob1, ob_faces, np.zeros((0, 2), np.int64), H)
+    assert np.all(imp.kind == col.VF_OBSTACLE)
+    found = dict(zip(imp.idx[:, 0].tolist(), imp.time.tolist()))
+    samples = np.linspace(0, 1, 4001)
+    crossings = 0
+    for i in range(m):  # a reference loop over test cases, not a hot path
+        ref = _dense_first_crossing(p0[i], p1[i], *(u for k in range(3) for u in (tri0[i, k], tri1[i, k])), samples)
+        if ref is not None:
+            crossings += 1
+            assert i in found, f"case {i}: sampled crossing at t={ref} missed"
+            assert found[i] <= ref + 1e-9
+        if i in found:  # every reported impact really touches at its time
+            t = found[i]
+            p = p0[i] + t * (p1[i] - p0[i])
+            a, b, c = tri0[i] + t * (tri1[i] - tri0[i])
+            assert prim.point_triangle_distance(tuple(p), tuple(a), tuple(b), tuple(c))[0] < 1e-6
+    assert crossings > 40
+
+
+# --------------------------------------------------------------------------- proximity
+def _brute_proximities(x, faces, edges, ob, ob_faces, ob_edges, h):
+    """O(n^2) numpy reference with the same criteria: {(kind, ids): gap}."""
+    out = {}
+
+    def vf(pts, tri_pts, vids, fids, kind, skip_shared, obstacle_face):
+        a, b, c = tri_pts[fids[:, 0]], tri_pts[fids[:, 1]], tri_pts[fids[:, 2]]
+        nn = np.cross(b - a, c - a)
+        area2 = np.linalg.norm(nn, axis=1)
+        n = nn / area2[:, None]
+        for vi, p in enumerate(pts):
+            hgt = np.sum((p - a) * n, 1)
+            b1 = np.sum(np.cross(p - a, c - a) * n, 1) / area2
+            b2 = np.sum(np.cross(b - a, p - a) * n, 1) / area2
+            ok = (np.abs(hgt) < h) & (b1 >= -1e-6) & (b2 >= -1e-6) & (1 - b1 - b2 >= -1e-6)
+            if skip_shared:
+                ok &= ~np.any(fids == vi, 1)
+            for f in np.flatnonzero(ok):
+                gap = hgt[f] if obstacle_face else abs(hgt[f])
+                out[(kind, vids[vi]) + tuple((-fids[f] - 1 if kind == 2 else fids[f]).tolist())] = gap
+
+    vf(x, x, list(range(len(x))), faces, 0, True, False)
+    vf(x, ob, list(range(len(x))), ob_faces, 2, False, True)
+    vf(ob, x, [-i - 1 for i in range(len(ob))], faces, 3, False, False)
+    for e, (i, j) in enumerate(edges):
+        for g, (k, l) in enumerate(edges):
+            if g <= e or len({i, j, k, l}) < 4:
+                continue
+            _ee(out, x[i], x[j], x[k], x[l], (1, i, j, k, l), h, None)
+    fn = np.cross(ob[ob_faces[:, 1]] - ob[ob_faces[:, 0]], ob[ob_faces[:, 2]] - ob[ob_faces[:, 0]])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    edge_normal = {}
+    for face, n in zip(ob_faces.tolist(), fn):
+        for k in range(3):
+            key = tuple(sorted((face[k], face[(k + 1) % 3])))
+            edge_normal[key] = edge_normal.get(key, 0.0) + n
+    for i, j in edges:
+        for k, l in ob_edges:
+            _ee(out, x[i], x[j], ob[k], ob[l], (4, i, j, -k - 1, -l - 1), h, edge_normal[(k, l)])
+    return out
+
+
+def _ee(out, p0, p1, q0, q1, key, h, obstacle):
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e, b = d1 @ d1, d2 @ d2, d1 @ d2
+    den = a * e - b * b
+    if den <= 1e-6 * a * e:
+        return
+    s = (b * (d2 @ r) - (d1 @ r) * e) / den
+    t = (a * (d2 @ r) - b * (d1 @ r)) / den
+    if not (-1e-6 <= s <= 1 + 1e-6 and -1e-6 <= t <= 1 + 1e-6):
+        return
+    s, t = np.clip(s, 0, 1), np.clip(t, 0, 1)
+    n = np.cross(d1, d2)
+    gap = n @ ((p0 + s * d1) - (q0 + t * d2)) / np.linalg.norm(n)
+    if abs(gap) < h:  # obstacle: the gap is positive on the side the edge pseudonormal points to
+        out[key] = abs(gap) if obstacle is None else gap * np.sign(n @ obstacle)
+
+
+def _crumpled_two_layers(n=9, seed=3):
+    rng = np.random.default_rng(seed)
+    lower = sheet(n, 0.1, 0.0)
+    upper = sheet(n, 0.1, 0.004, shift=(0.004, 0.003))
+    x, f, e = merge(lower, upper)
+    x = x + rng.normal(scale=[0.0005, 0.0005, 0.0015], size=x.shape)
+    return x, f, e
+
+
+def test_proximity_matches_brute_force():
+    x, faces, edges = _crumpled_two_layers()
+    ob, ob_faces, ob_edges = ball([0.01, 0.0, -0.053], 0.05, subdivisions=2)
+    c = col.find_proximities(torch.from_numpy(x), torch.from_numpy(faces), edges, ob, ob_faces, ob_edges, H)
+    ref = _brute_proximities(x, faces, edges, ob, ob_faces, ob_edges, H)
+    got = {}
+    for k, ids, d in zip(c.kind.tolist(), c.idx.tolist(), c.d.tolist()):
+        if k == col.EE_SELF:  # unordered pair: lower edge first, as in the reference
+            e0, e1 = tuple(ids[:2]), tuple(ids[2:])
+            ids = list(min(e0, e1)) + list(max(e0, e1))
+        got[(k,) + tuple(ids)] = abs(d) if k == col.FV_OBSTACLE else d
+    assert len(ref) > 100 and {k[0] for k in ref} == {0, 1, 2, 3, 4}
+    assert set(got) == set(ref)
+    for key, gap in ref.items():
+        assert got[key] == pytest.approx(gap, abs=1e-12)
+    # gaps recomputed from the contact representation equal d, weights sum to zero
+    assert c.gaps(x, ob) == pytest.approx(c.d, abs=1e-12)
+    assert np.abs(c.w.sum(1)).max() < 1e-12
+    assert np.allclose(np.linalg.norm(c.n, axis=1), 1)
+    # obstacle vertex / cloth face contacts agree with a direct check
+    fv = c.select(c.kind == col.FV_OBSTACLE)
+    assert len(fv) > 0 and np.all(np.abs(fv.d) < H)
+
+
+def test_proximity_flat_sheet_has_no_self_contacts_and_obstacle_normals_point_out():
+    x, f, e = sheet(30, 0.1, 0.0)  # spacing 3.4 mm < thickness: in-plane neighbours are no contacts
+    gx, gf, ge = ground(z=-0.002)
+    c = col.find_proximities(x, f, e, gx, gf, ge, H)
+    assert c.counts()["vf_self"] == 0 and c.counts()["ee_self"] == 0
+    vf = c.select(c.kind == col.VF_OBSTACLE)
+    assert len(vf) >= len(x) and np.allclose(vf.n, [0, 0, 1]) and np.allclose(vf.d, 0.002)
+
+
+def test_bvh_pairs_match_brute_force():
+    rng = np.random.default_rng(4)
+    for n_a, n_b in ((300, 200), (257, 1)):
+        lo_a = rng.uniform(0, 1, (n_a, 3))
+        hi_a = lo_a + rng.uniform(0, 0.08, (n_a, 3))
+        lo_b = rng.uniform(0, 1, (n_b, 3))
+        hi_b = lo_b + rng.uniform(0, 0.08, (n_b, 3))
+        ov = np.all((lo_a[:, None] <= hi_b[None]) & (lo_b[None] <= hi_a[:, None]), -1)
+        got = overlapping_pairs(BVH.build(lo_a, hi_a), BVH.build(lo_b, hi_b))
+        assert set(map(tuple, got.tolist())) == set(zip(*np.nonzero(ov)))
+        ov_self = np.all((lo_a[:, None] <= hi_a[None]) & (lo_a[None] <= hi_a[:, None]), -1)
+        got = overlapping_pairs(BVH.build(lo_a, hi_a))
+        assert {tuple(sorted(p)) for p in got.tolist()} == set(zip(*np.nonzero(np.triu(ov_self, 1))))
+        assert len(got) == int(np.triu(ov_self, 1).sum())
+
+
+# --------------------------------------------------------------------------- intersections
+def test_count_intersections_known_crossing_and_flat_sheet():
+    x, f, e = sheet(10, 1.0, 0.0)
+    gx, gf, ge = ground(z=-0.5)
+    assert col.count_intersections(x, f, e, gx, gf, ge) == (0, 0)
+    # a single obstacle triangle piercing the sheet: two of its edges cross cloth faces
+    tri = np.array([[0.01, 0.02, -0.3], [0.03, 0.01, 0.3], [0.2, 0.3, 0.3]])
+    n_self, n_ob = col.count_intersections(x, f, e, tri, np.array([[0, 1, 2]]), edges_of(np.array([[0, 1, 2]])))
+    assert n_self == 0 and n_ob >= 2
+    # self: a second sheet tilted through the first
+    y, g, _ = sheet(6, 0.4, 0.0)
+    y = y[:, [0, 2, 1]] + [0.013, 0.017, 0.0]  # vertical sheet crossing z=0
+    xx, ff, ee = merge((x, f, e), (y, g, None))
+    n_self, n_ob = col.count_intersections(xx, ff, ee, *no_obstacle())
+    assert n_self > 0 and n_ob == 0
+    assert col.count_intersections(xx, ff, ee, *no_obstacle(), self_collision=False) == (0, 0)
+
+
+def test_obstacle_distances_on_a_sphere():
+    rng = np.random.default_rng(5)
+    ob, obf, _ = ball([0.1, -0.2, 0.3], 0.5, subdivisions=3)
+    pts = rng.normal(size=(300, 3))
+    pts = pts / np.linalg.norm(pts, axis=1, keepdims=True) * rng.uniform(0.1, 0.9, (300, 1)) + [0.1, -0.2, 0.3]
+    sd = col.signed_obstacle_distance(pts, ob, obf)
+    exact = np.linalg.norm(pts - [0.1, -0.2, 0.3], axis=1) - 0.5  # the mesh is inscribed: within ~1 %
+    clear = np.abs(exact) > 0.02  # the inscribed mesh is within 1 cm of the sphere
+    assert np.all(np.sign(sd[clear]) == np.sign(exact[clear]))
+    assert np.abs(sd - exact).max() < 0.01
+    # unsigned minimum against a brute-force minimum over all faces
+    a, b, c = ob[obf[:, 0]], ob[obf[:, 1]], ob[obf[:, 2]]
+    ref = min(prim.point_triangle_distance(tuple(p), tuple(a[k]), tuple(b[k]), tuple(c[k]))[0] for p in pts[:20] for k in range(len(obf)))
+    assert col.min_obstacle_distance(pts[:20], ob, obf) == pytest.approx(ref, abs=1e-12)
+    assert col.min_obstacle_distance(pts, *no_obstacle()[:2]) == float("inf")
+
+
+# --------------------------------------------------------------------------- response
+def _check_resolved(x0, res, faces, edges, ob0, ob1, obf, obe, report, target):
+    assert report.success
+    assert col.count_intersections(res, faces, edges, ob1, obf, obe) == (0, 0)
+    assert len(col.find_impacts(x0, res, faces, edges, ob0, ob1, obf, obe, H)) == 0
+    assert report.max_violation < 1e-9
+    gaps = report.constraints.gaps(res, ob1)
+    assert gaps.min() >= target - 1e-9
+
+
+def test_cloth_falling_fast_through_a_plane_ends_above_it():
+    rng = np.random.default_rng(6)
+    x0, f, e = sheet(12, 0.5, 0.01)
+    x1 = x0 + [0.0, 0.0, -0.06] + rng.normal(scale=0.003, size=x0.shape)
+    gx, gf, ge = ground(z=0.0)
+    assert x1[:, 2].max() < 0  # tunnelled right through: only CCD can see it
+    assert len(col.find_impacts(x0, x1, f, e, gx, gx, gf, ge, H)) >= len(x0)
+    m = np.full(len(x0), 1e-3)
+    res, rep = col.resolve_collisions(x0, x1, m, f, e, gx, gx, gf, ge, H)
+    _check_resolved(x0, res, f, e, gx, gx, gf, ge, rep, 0.1 * H)
+    assert res[:, 2].min() >= 0.1 * H - 1e-9
+    assert rep.impacts_found > 0 and rep.zones >= 1
+    safe = col.rigid_impact_zone_fallback(x0, x1, m, f, e, gx, gx, gf, ge, H)
+    assert col.count_intersections(safe, f, e, gx, gf, ge) == (0, 0)
+    assert len(col.find_impacts(x0, safe, f, e, gx, gx, gf, ge, H)) == 0
+
+
+def _squeezed_layers():
+    lower = sheet(9, 0.2, 0.0)
+    upper = sheet(9, 0.2, 0.004, shift=(0.0125, 0.0125))
+    x0, f, e = merge(lower, upper)
+    x1 = x0.copy()
+    top = np.arange(81, 162)
+    centre = top[np.linalg.norm(x0[top, :2] - [0.0125, 0.0125], axis=1) < 0.06]
+    x1[centre, 2] = -0.012  # pushed down through the lower sheet
+    x1[np.arange(81), 2] += 0.002
+    pinned = np.zeros(len(x0), bool)
+    pinned[[0, 8, 72, 80]] = True  # lower sheet's corners
+    return x0, x1, f, e, pinned
+
+
+def test_vertex_driven_through_another_layer_is_stopped_and_pins_hold():
+    x0, x1, f, e, pinned = _squeezed_layers()
+    assert col.count_intersections(x1, f, e, *no_obstacle())[0] > 0
+    masses = torch.full((len(x0),), 2e-4, dtype=torch.float64)
+    res, rep = col.resolve_collisions(torch.from_numpy(x0), x1, masses, f, e, *no_obstacle()[:1], *no_obstacle(), H, pinned_mask=pinned)
+    _check_resolved(x0, res, f, e, *no_obstacle()[:1], *no_obstacle(), rep, 0.1 * H)
+    assert np.array_equal(res[pinned], x1[pinned])
+    # KKT of the projection: z - x1 = M^-1 A^T lambda, lambda >= 0, complementary slackness
+    c, lam = rep.constraints, rep.multipliers
+    assert lam.min() >= 0
+    disp = np.zeros_like(x0)
+    for k in range(4):
+        np.add.at(disp, c.idx[:, k], (lam * c.w[:, k])[:, None] * c.n)
+    disp[pinned] = 0.0
+    assert np.abs(res - x1 - disp / 2e-4).max() < 1e-9
+    slack = c.gaps(res) - rep.target_gap
+    assert np.abs(lam * slack).max() < 1e-9 * max(lam.max(), 1.0)
+    safe = col.rigid_impact_zone_fallback(x0, x1, masses, f, e, *no_obstacle()[:1], *no_obstacle(), H, pinned_mask=pinned)
+    assert col.count_intersections(safe, f, e, *no_obstacle()) == (0, 0)
+    assert len(col.find_impacts(x0, safe, f, e, *no_obstacle()[:1], *no_obstacle(), H)) == 0
+    assert np.array_equal(safe[pinned], x1[pinned])
+
+
+def test_moving_obstacle_pushes_cloth():
+    x0, f, e = sheet(12, 0.4, 0.0)
+    ob0, obf, obe = ball([0.0, 0.0, -0.21], 0.2, subdivisions=2)
+    ob1 = ob0 + [0.0, 0.0, 0.05]  # rises 5 cm through the resting cloth
+    m = np.full(len(x0), 1e-3)
+    res, rep = col.resolve_collisions(x0, x0.copy(), m, f, e, ob0, ob1, obf, obe, H)
+    _check_resolved(x0, res, f, e, ob0, ob1, obf, obe, rep, 0.1 * H)
+    assert col.signed_obstacle_distance(res, ob1, obf).min() > 0
+    assert res[:, 2].max() > 0.03
+    safe = col.rigid_impact_zone_fallback(x0, x0.copy(), m, f, e, ob0, ob1, obf, obe, H)
+    assert col.count_intersections(safe, f, e, ob1, obf, obe) == (0, 0)
+    assert len(col.find_impacts(x0, safe, f, e, ob0, ob1, obf, obe, H)) == 0
+
+
+def test_sharp_obstacle_tip_is_caught_by_vertex_face_contacts():
+    x0, f, e = sheet(5, 0.4, 0.0)  # coarse: the tip falls inside one cloth face
+    tip = np.array([[0.03, 0.02, -0.02], [-0.1, -0.1, -0.2], [0.1, -0.1, -0.2], [0.0, 0.12, -0.2]])
+    tf = np.array([[0, 2, 1], [0, 3, 2], [0, 1, 3], [1, 2, 3]])
+    tip1 = tip + [0, 0, 0.05]
+    res, rep = col.resolve_collisions(x0, x0.copy(), np.full(len(x0), 1e-3), f, e, tip, tip1, tf, edges_of(tf), H)
+    _check_resolved(x0, res, f, e, tip, tip1, tf, edges_of(tf), rep, 0.1 * H)
+    assert col.FV_OBSTACLE in set(rep.constraints.kind.tolist())
+
+
+def test_bad_input_raises_mesh_error():
+    x, f, e = sheet(3)
+    with pytest.raises(MeshError, match="cloth faces"):
+        col.find_proximities(x, f + 100, e, *no_obstacle(), H)
+    with pytest.raises(MeshError, match="positions"):
+        col.find_proximities(x[:, :2], f, e, *no_obstacle(), H)
+    with pytest.raises(MeshError, match="masses"):
+        col.resolve_collisions(x, x, np.zeros(len(x)), f, e, *no_obstacle()[:1], *no_obstacle(), H)
