@@ -71,3 +71,11 @@ def test_bench_sim_quick(tmp_path):
         for key in ("scene", "grid", "vertices", "dt", "threads", "s_per_step"):
             assert key in r
         assert r["s_per_step"] > 0 and "speedup_vs_arcsim" in r
+
+
+def test_robustness_check_reports_a_passing_run():
+    from tryon.bench.robustness import check_one
+
+    rec = check_one("hanging", "gray-interlock", 1 / 30, resolution=6, duration=0.1)
+    assert rec["ok"] and rec["finite"] and rec["intersections"] == 0
+    assert rec["steps"] == 3

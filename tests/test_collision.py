@@ -8,8 +8,8 @@ import trimesh
 
 from tryon.errors import MeshError
 from tryon.sim import collision as col
-from tryon.sim.collision import primitives as prim
-from tryon.sim.collision.bvh import BVH, element_boxes, overlapping_pairs
+from tryon.sim.collision import ccd, primitives as prim
+from tryon.sim.collision.bvh import BVH, overlapping_pairs
 
 H = 0.005
 
@@ -104,32 +104,39 @@ def test_segment_distance_matches_dense_sampling():
 # --------------------------------------------------------------------------- CCD
 def test_ccd_vertex_through_triangle_known_time():
     tri = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-    x0 = np.array([[0.2, 0.2, 0.3]])
-    x1 = np.array([[0.2, 0.2, -0.1]])
-    none = np.zeros((0, 3), np.int64)
-    imp = col.find_impacts(x0, x1, none, np.zeros((0, 2), np.int64), tri, tri, np.array([[0, 1, 2]]), edges_of(np.array([[0, 1, 2]])), H)
+    tri_f = np.array([[0, 1, 2]])
+    # a vertical cloth triangle whose lowest vertex drops from z=0.3 to z=-0.1
+    x0 = np.array([[0.2, 0.2, 0.3], [0.2, 0.2, 0.5], [0.25, 0.2, 0.5]])
+    x1 = x0 - [0.0, 0.0, 0.4]
+    f = np.array([[0, 1, 2]])
+    imp = col.find_impacts(x0, x1, f, edges_of(f), tri, tri, tri_f, edges_of(tri_f), H)
     assert len(imp) == 1 and imp.kind[0] == col.VF_OBSTACLE
+    assert imp.idx[0].tolist() == [0, -1, -2, -3]
     assert imp.time[0] == pytest.approx(0.75, abs=1e-12)
     assert imp.n[0] == pytest.approx([0, 0, 1])  # towards the side the vertex came from
     assert imp.w[0] == pytest.approx([1, -0.6, -0.2, -0.2])
     assert abs(imp.d[0]) < 1e-9
-    # the same motion, 1 mm to the side of the triangle, is no impact
-    miss0, miss1 = x0 + [0.9, 0.0, 0], x1 + [0.9, 0.0, 0]
-    assert len(col.find_impacts(miss0, miss1, none, np.zeros((0, 2), np.int64), tri, tri, np.array([[0, 1, 2]]), np.zeros((0, 2), np.int64), H)) == 0
+    # the same motion 0.9 m to the side of the triangle is no impact
+    assert len(col.find_impacts(x0 + [0.9, 0, 0], x1 + [0.9, 0, 0], f, edges_of(f), tri, tri, tri_f, edges_of(tri_f), H)) == 0
 
 
 def test_ccd_edge_crossing_edge_known_time():
-    x0 = np.array([[-1.0, 0, 0], [1, 0, 0], [0.3, -1, 1], [0.3, 1, 1]])
+    a = np.array([[-1.0, 0, 0], [1, 0, 0], [0, 0, -1]])  # static, top edge along x at z=0
+    b0 = np.array([[0.3, -1, 1], [0.3, 1, 1], [0.3, 0.1, 2]])  # bottom edge along y at z=1
+    x0 = np.concatenate([a, b0])
     x1 = x0.copy()
-    x1[2:, 2] = -3.0  # the second edge drops from z=1 to z=-3: crosses z=0 at t=1/4
-    edges = np.array([[0, 1], [2, 3]])
-    imp = col.find_impacts(x0, x1, np.zeros((0, 3), np.int64), edges, *no_obstacle()[:1], *no_obstacle(), H)
-    assert len(imp) == 1 and imp.kind[0] == col.EE_SELF
-    assert imp.time[0] == pytest.approx(0.25, abs=1e-12)
-    assert imp.w[0] == pytest.approx([1 - 0.65, 0.65, -0.5, -0.5])
-    gap0 = col.Contacts.gaps(imp, x0)
-    assert gap0[0] > 0  # oriented so that the start configuration has a positive gap
-    assert col.Contacts.gaps(imp, x1)[0] < 0
+    x1[3:, 2] -= 4.0  # the bottom edge of b crosses the top edge of a at t = 1/4
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    imp = col.find_impacts(x0, x1, f, edges_of(f), *no_obstacle()[:1], *no_obstacle(), H)
+    pair = [k for k in range(len(imp)) if sorted(imp.idx[k].tolist()) == [0, 1, 3, 4]]
+    assert len(pair) == 1
+    k = pair[0]
+    assert imp.kind[k] == col.EE_SELF and imp.time[k] == pytest.approx(0.25, abs=1e-12)
+    w = dict(zip(imp.idx[k].tolist(), imp.w[k].tolist()))
+    assert [w[0], w[1], w[3], w[4]] == pytest.approx([0.35, 0.65, -0.5, -0.5]) or [w[3], w[4], w[0], w[1]] == pytest.approx([0.5, 0.5, -0.35, -0.65])
+    assert imp.select(np.array([k])).gaps(x0)[0] > 0  # oriented so that the start gap is positive
+    assert imp.select(np.array([k])).gaps(x1)[0] < 0
+    assert imp.time.min() == pytest.approx(0.25, abs=1e-12)  # nothing earlier
 
 
 def _dense_first_crossing(p0, p1, a0, a1, b0, b1, c0, c1, samples):
@@ -155,36 +162,53 @@ def _dense_first_crossing(p0, p1, a0, a1, b0, b1, c0, c1, samples):
 
 def test_ccd_misses_nothing_on_random_motions():
     rng = np.random.default_rng(2)
-    m = 400
-    spacing = 20.0  # each vertex/triangle pair lives in its own cell, far from the others
-    offs = np.zeros((m, 3))
-    offs[:, 0] = np.arange(m) * spacing
-    tri0 = rng.uniform(-1, 1, size=(m, 3, 3))
-    tri1 = tri0 + rng.normal(scale=0.6, size=(m, 3, 3)) * (rng.random((m, 1, 1)) < 0.6)
-    # vertices that start on one side and end on the other side of the centroid region
-    cen0, cen1 = tri0.mean(1), tri1.mean(1)
-    p0 = cen0 + rng.normal(scale=0.8, size=(m, 3))
-    p1 = cen1 + rng.normal(scale=0.8, size=(m, 3))
-    ob0 = (tri0 + offs[:, None]).reshape(-1, 3)
-    ob1 = (tri1 + offs[:, None]).reshape(-1, 3)
-    ob_faces = np.arange(3 * m).reshape(m, 3)
-    imp = col.find_impacts(p0 + offs, p1 + offs, np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64), ob0, ob1, ob_faces, np.zeros((0, 2), np.int64), H)
-    assert np.all(imp.kind == col.VF_OBSTACLE)
-    found = dict(zip(imp.idx[:, 0].tolist(), imp.time.tolist()))
     samples = np.linspace(0, 1, 4001)
+    ts = np.empty(8)
     crossings = 0
-    for i in range(m):  # a reference loop over test cases, not a hot path
-        ref = _dense_first_crossing(p0[i], p1[i], *(u for k in range(3) for u in (tri0[i, k], tri1[i, k])), samples)
+    for _ in range(400):  # reference loop over random test cases
+        tri0 = rng.uniform(-1, 1, size=(3, 3))
+        tri1 = tri0 + rng.normal(scale=0.6, size=(3, 3)) * (rng.random() < 0.6)
+        p0 = tri0.mean(0) + rng.normal(scale=0.8, size=3)
+        p1 = tri1.mean(0) + rng.normal(scale=0.8, size=3)
+        pts = (p0, p1, tri0[0], tri1[0], tri0[1], tri1[1], tri0[2], tri1[2])
+        ok, t, n, u0, u1, u2, d = ccd.vf_impact(*(tuple(p) for p in pts), 1e-6, ts)
+        ref = _dense_first_crossing(*pts, samples)
         if ref is not None:
             crossings += 1
-            assert i in found, f"case {i}: sampled crossing at t={ref} missed"
-            assert found[i] <= ref + 1e-9
-        if i in found:  # every reported impact really touches at its time
-            t = found[i]
-            p = p0[i] + t * (p1[i] - p0[i])
-            a, b, c = tri0[i] + t * (tri1[i] - tri0[i])
+            assert ok and t <= ref + 1e-9, f"sampled crossing at t={ref} missed"
+        if ok:  # every reported impact really touches at its time
+            p = p0 + t * (p1 - p0)
+            a, b, c = tri0 + t * (tri1 - tri0)
             assert prim.point_triangle_distance(tuple(p), tuple(a), tuple(b), tuple(c))[0] < 1e-6
+            assert abs(d) < 1e-6
     assert crossings > 40
+
+
+def test_ccd_edge_edge_misses_nothing_on_random_motions():
+    rng = np.random.default_rng(12)
+    samples = np.linspace(0, 1, 4001)[:, None]
+    ts = np.empty(8)
+    crossings = 0
+    for _ in range(300):
+        start = rng.uniform(-1, 1, size=(4, 3))
+        end = start + rng.normal(scale=0.8, size=(4, 3))
+        pos = start[None] + samples[..., None] * (end - start)[None]  # [T,4,3]
+        d1, d2, r = pos[:, 1] - pos[:, 0], pos[:, 3] - pos[:, 2], pos[:, 2] - pos[:, 0]
+        vol = np.sum(np.cross(d1, d2) * r, 1)
+        ok, t, n, a, b, d = ccd.ee_impact(*(tuple(p) for k in range(4) for p in (start[k], end[k])), 1e-6, ts)
+        for k in np.flatnonzero(np.sign(vol[:-1]) * np.sign(vol[1:]) < 0):  # sampled crossings
+            p0, p1, q0, q1 = pos[k + 1]
+            dist, _, _ = prim.segment_distance(tuple(p0), tuple(p1), tuple(q0), tuple(q1))
+            e0, e1, f0, f1 = pos[k]
+            dist0, _, _ = prim.segment_distance(tuple(e0), tuple(e1), tuple(f0), tuple(f1))
+            if max(dist, dist0) < 2e-3 and min(np.linalg.norm(p1 - p0), np.linalg.norm(q1 - q0)) > 0.05:
+                crossings += 1
+                assert ok and t <= samples[k + 1, 0] + 1e-9
+                break
+        if ok:
+            p, rr, q, s = (start[k] + t * (end[k] - start[k]) for k in range(4))
+            assert prim.segment_distance(tuple(p), tuple(rr), tuple(q), tuple(s))[0] < 1e-6
+    assert crossings > 10
 
 
 # --------------------------------------------------------------------------- proximity

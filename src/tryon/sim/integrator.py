@@ -217,25 +217,32 @@ class ImplicitEulerSolver:
         blocks = (stiff[:, None] * lump)[..., None, None] * nn[:, None]
         add_diagonal_blocks(H, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[act.is_cloth]))
         act.fn = fn
+        act.stiff = stiff
         return act
 
     def _apply_friction(self, act, v_new, ob0, ob1, dt) -> None:
         """Coulomb friction as a velocity filter after the solve (Bridson, Fedkiw & Anderson
         2002), per cloth vertex: the change that would stop the relative tangential motion
         of its contacts (their force-weighted mean) is applied up to the friction budget
-        mu*dt*sum(fn)/m, so vertices inside the friction cone stick and the others slide."""
+        mu*dt*sum(fn)/m, so vertices inside the friction cone stick and the others slide.
+        fn is the end-of-step normal force the implicit solve applied (the penalty
+        linearised at the new velocities), not the start-of-step penalty, which is far too
+        large in the step where a fast vertex enters the contact layer."""
         cs = self.model.collision
         vel_ob = (ob1 - ob0) / dt if len(ob1) else np.zeros((1, 3))
         vel = np.where(act.is_cloth[..., None], v_new[act.cloth_i], vel_ob[act.ob_i])
+        cloth_vel = np.where(act.is_cloth[..., None], vel, 0.0)
+        gap_change = dt * np.einsum("ck,ckd,cd->c", act.w, cloth_vel, act.n)
+        fn_end = np.maximum(act.fn - act.stiff * gap_change, 0.0)
         vr = np.einsum("ck,ckd->cd", act.w, vel)
         vt = vr - np.sum(vr * act.n, 1, keepdims=True) * act.n
         wc = np.where(act.is_cloth, act.w, 0.0)
         inv_m = np.where(act.is_cloth, 1.0 / self.mass[act.cloth_i], 0.0)
         inv_meff = np.maximum(np.sum(wc**2 * inv_m, 1), 1e-30)
         mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction)
-        weight = np.abs(wc) * act.fn[:, None]  # [C,4] how much each contact matters to a point
+        weight = np.abs(wc) * fn_end[:, None] + 1e-300  # [C,4] how much each contact matters to a point
         stop = -((wc * inv_m) / inv_meff[:, None])[..., None] * vt[:, None, :]  # [C,4,3]
-        budget = (mu * dt * act.fn)[:, None] * np.abs(wc) * inv_m  # [C,4] speed budget
+        budget = (mu * dt * fn_end)[:, None] * np.abs(wc) * inv_m  # [C,4] speed budget
         sel = act.is_cloth
         verts = act.cloth_i[sel]
         n = len(v_new)
@@ -279,6 +286,7 @@ class _ContactPoints:
     ob_i: np.ndarray
     pos: np.ndarray
     fn: np.ndarray | None = None
+    stiff: np.ndarray | None = None
 
 
 def _contact_points(c, x: np.ndarray, ob: np.ndarray) -> _ContactPoints:

@@ -23,14 +23,10 @@ from tryon.sim.collision.contacts import (
     VF_SELF,
     Contacts,
 )
-from tryon.sim.collision.impact_zones import (
-    CollisionReport,
-    project_constraints,
-    resolve_collisions,
-    rigid_impact_zone_fallback,
-)
+from tryon.sim.collision.impact_zones import CollisionReport, resolve_collisions, rigid_impact_zone_fallback
 from tryon.sim.collision.intersections import count_intersections, min_obstacle_distance, signed_obstacle_distance
 from tryon.sim.collision.proximity import find_proximities
+from tryon.sim.collision.qp import QPResult, solve_projection
 
 __all__ = [
     "BVH",
@@ -47,7 +43,8 @@ __all__ = [
     "find_proximities",
     "min_obstacle_distance",
     "overlapping_pairs",
-    "project_constraints",
+    "QPResult",
+    "solve_projection",
     "resolve_collisions",
     "rigid_impact_zone_fallback",
     "signed_obstacle_distance",

@@ -12,10 +12,10 @@ candidate positions x1 onto all constraints found so far in the mass metric:
 
     min_z 1/2 (z - x1)^T M (z - x1)   s.t.   g_c(z) >= target  for all c.
 
-The projection is solved through its dual by projected Gauss-Seidel (Hildreth's method:
-exact coordinate ascent on the dual, converging to the unique primal optimum) until the
-worst violation is below `tol` metres. Impact zones - groups of vertices coupled through
-constraints - are solved together automatically since their blocks are independent.
+The projection is solved exactly (`qp.solve_projection`: dual Gauss-Seidel, then an
+interior point method when that is slow) to a worst violation below `tol` metres. Impact
+zones - groups of vertices coupled through constraints - are solved together in one QP,
+whose blocks are independent.
 """
 
 from __future__ import annotations
@@ -30,12 +30,11 @@ from scipy.sparse.csgraph import connected_components
 from tryon.errors import MeshError
 from tryon.sim.collision.ccd import find_impacts
 from tryon.sim.collision.contacts import Contacts, as_points
-from tryon.sim.collision.primitives import jit
 from tryon.sim.collision.proximity import prepare_inputs
+from tryon.sim.collision.qp import solve_projection
 
 GAP_FRACTION = 0.1  # ARCSim: projection thickness 1e-4 m vs repulsion thickness 1e-3 m
 QP_TOL = 1e-10  # metres of constraint violation
-QP_MAX_SWEEPS = 20000
 
 
 @dataclass
@@ -50,99 +49,10 @@ class CollisionReport:
     success: bool = True
     max_violation: float = 0.0
     qp_sweeps: int = 0
+    ipm_iterations: int = 0
     target_gap: float = 0.0
     constraints: Contacts = field(default_factory=Contacts.empty)
     multipliers: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-
-# --------------------------------------------------------------------------- the QP
-@jit
-def _constraint_rows(idx, w, n, inv_mass, x_fixed, ob, target):
-    """Right-hand sides b_c = target - (fixed contributions) and diagonal dual entries
-    Q_cc = sum_free w_k^2 / m_k of the constraints sum_free w_k n.z_k >= b_c."""
-    c_count = idx.shape[0]
-    b = np.empty(c_count)
-    q = np.zeros(c_count)
-    for c in range(c_count):
-        fixed = 0.0
-        for k in range(4):
-            i = idx[c, k]
-            if i >= 0 and inv_mass[i] > 0.0:
-                q[c] += w[c, k] * w[c, k] * inv_mass[i]
-                continue
-            if i >= 0:
-                p0, p1, p2 = x_fixed[i, 0], x_fixed[i, 1], x_fixed[i, 2]
-            else:
-                j = -i - 1
-                p0, p1, p2 = ob[j, 0], ob[j, 1], ob[j, 2]
-            fixed += w[c, k] * (n[c, 0] * p0 + n[c, 1] * p1 + n[c, 2] * p2)
-        b[c] = target - fixed
-    return b, q
-
-
-@jit
-def _free_value(c, idx, w, n, inv_mass, z):
-    g = 0.0
-    for k in range(4):
-        i = idx[c, k]
-        if i >= 0 and inv_mass[i] > 0.0:
-            g += w[c, k] * (n[c, 0] * z[i, 0] + n[c, 1] * z[i, 1] + n[c, 2] * z[i, 2])
-    return g
-
-
-@jit
-def _apply(c, delta, idx, w, n, inv_mass, z):
-    for k in range(4):
-        i = idx[c, k]
-        if i >= 0 and inv_mass[i] > 0.0:
-            s = delta * w[c, k] * inv_mass[i]
-            z[i, 0] += s * n[c, 0]
-            z[i, 1] += s * n[c, 1]
-            z[i, 2] += s * n[c, 2]
-
-
-@jit
-def project_constraints(x_target, inv_mass, idx, w, n, ob, target, lam0, tol, max_sweeps):
-    """Mass-weighted projection of x_target onto {z : sum_k w_ck n_c.z_k >= target}, by
-    projected Gauss-Seidel on the dual (Hildreth 1957), warm-started from lam0.
-    Returns z, multipliers, worst violation (m), sweeps used."""
-    b, q = _constraint_rows(idx, w, n, inv_mass, x_target, ob, target)
-    c_count = idx.shape[0]
-    z = x_target.copy()
-    lam = lam0.copy()
-    for c in range(c_count):
-        if q[c] > 0.0 and lam[c] > 0.0:
-            _apply(c, lam[c], idx, w, n, inv_mass, z)
-        else:
-            lam[c] = 0.0
-    sweeps = 0
-    worst = 0.0
-    for sweeps in range(1, max_sweeps + 1):
-        step = 0.0
-        for c in range(c_count):
-            if q[c] <= 0.0:
-                continue
-            r = b[c] - _free_value(c, idx, w, n, inv_mass, z)
-            delta = max(-lam[c], r / q[c])
-            if delta != 0.0:
-                lam[c] += delta
-                _apply(c, delta, idx, w, n, inv_mass, z)
-                step = max(step, abs(delta) * q[c])
-        if step < 0.1 * tol:
-            worst = _worst_violation(b, q, idx, w, n, inv_mass, z)
-            if worst < tol:
-                break
-    worst = _worst_violation(b, q, idx, w, n, inv_mass, z)
-    return z, lam, worst, sweeps
-
-
-@jit
-def _worst_violation(b, q, idx, w, n, inv_mass, z):
-    worst = 0.0
-    for c in range(idx.shape[0]):
-        r = b[c] - (_free_value(c, idx, w, n, inv_mass, z) if q[c] > 0.0 else 0.0)
-        worst = max(worst, r)
-    return worst
 
 
 def count_zones(constraints: Contacts, n_vertices: int) -> int:
@@ -158,7 +68,7 @@ def _coupling_graph(idx: np.ndarray, n_vertices: int, ob_component: np.ndarray |
     """Graph over the cloth vertices plus one node per obstacle component (numbered after
     the cloth; obstacle points are left out when ob_component is None) that links the
     points of each contact. Returns (graph, involved-node mask)."""
-    if ob_component is None:
+    if ob_component is None or len(ob_component) == 0:
         node = np.where(idx >= 0, idx, -1)
     else:
         node = np.where(idx >= 0, idx, n_vertices + ob_component[np.where(idx < 0, -idx - 1, 0)])
@@ -236,13 +146,12 @@ def resolve_collisions(
         report.impacts_found += len(impacts)
         constraints = constraints + impacts
         lam = np.concatenate([lam, np.zeros(len(impacts))])
-        x, lam, worst, sweeps = project_constraints(
-            x1, inv_mass, constraints.idx, constraints.w, constraints.n, ob1 if len(ob1) else np.zeros((1, 3)),
-            target, lam, tol, QP_MAX_SWEEPS,
-        )
+        qp = solve_projection(x1, inv_mass, constraints.idx, constraints.w, constraints.n, ob1, target, lam, tol)
+        x, lam = qp.z, qp.lam
         report.iterations = it + 1
-        report.qp_sweeps += int(sweeps)
-        report.max_violation = float(worst)
+        report.qp_sweeps += qp.sweeps
+        report.ipm_iterations += qp.ipm_iterations
+        report.max_violation = qp.violation
     report.zones = count_zones(constraints, len(x0))
     report.constraints = constraints
     report.multipliers = lam
