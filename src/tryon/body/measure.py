@@ -1,0 +1,135 @@
+"""Body measurements on a rest-pose `BodyShape`, differentiable in the vertices.
+
+* stature: top of the head above the soles (z = 0).
+* volume: of the closed skin mesh (divergence theorem); mass = 980 kg/m^3 x volume, the
+  density Anny's own anthropometry uses; BMI = mass / stature^2.
+* girths, measured like a tape around the torso in a horizontal plane: the perimeter of
+  the convex hull of the torso's cross-section (the arms, found by their skinning weights,
+  are left out, so a tape never runs around an arm):
+    - chest: at the height of the bust point, the most forward point of the chest at least
+      4 cm off the midline between the heads of the spine02 and spine01 bones (the bust in
+      women, the chest at the nipples in men);
+    - waist: the smallest girth between the heads of spine04 and spine02 (the natural
+      waist, between the lowest rib and the iliac crest);
+    - hip: the largest girth between the head of upperleg02 (upper thigh) and the pelvis
+      (the buttocks at their fullest).
+  For waist and hip the search scans 16 levels of the band and measures at the best one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import ConvexHull
+
+from tryon.body.anny_model import BodyShape
+
+BODY_DENSITY = 980.0  # kg/m^3, as in anny.Anthropometry
+ARM_BONE_WORDS = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
+GIRTH_BANDS = {  # name -> (lower bone, upper bone, "max" | "min")
+    "chest": ("spine02", "spine01", "bust"),
+    "waist": ("spine04", "spine02", "min"),
+    "hip": ("upperleg02.L", "pelvis.L", "max"),
+}
+BAND_LEVELS = 16
+
+
+def stature(v: torch.Tensor) -> torch.Tensor:
+    return v[:, 2].max() - v[:, 2].min()
+
+
+def volume(v: torch.Tensor, faces: np.ndarray) -> torch.Tensor:
+    f = torch.from_numpy(faces)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return (torch.cross(a, b, dim=1) * c).sum().abs() / 6.0
+
+
+def mass(v: torch.Tensor, faces: np.ndarray) -> torch.Tensor:
+    return BODY_DENSITY * volume(v, faces)
+
+
+def bmi(v: torch.Tensor, faces: np.ndarray) -> torch.Tensor:
+    return mass(v, faces) / stature(v) ** 2
+
+
+_TORSO_EDGES: dict[tuple[int, int], np.ndarray] = {}
+
+
+def torso_edges(shape: BodyShape) -> np.ndarray:
+    """Mesh edges [E,2] whose two ends belong to the torso, head or legs (not the arms).
+    Cached per model (every shape of a model shares its faces and weight arrays)."""
+    key = (id(shape.faces), id(shape.weight))
+    if key not in _TORSO_EDGES:
+        arm_bone = np.array([any(w in lab for w in ARM_BONE_WORDS) for lab in shape.bone_labels])
+        arm = (shape.weight * arm_bone[shape.weight_index]).sum(1) > 0.5
+        f = shape.faces
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = np.unique(np.sort(e, axis=1), axis=0)
+        _TORSO_EDGES[key] = e[~arm[e].any(1)]
+    return _TORSO_EDGES[key]
+
+
+def slice_points(v: torch.Tensor, edges: np.ndarray, z: float) -> torch.Tensor:
+    """Points [P,2] (x, y) where the edges cross the plane at height z (differentiable in v)."""
+    zv = v[:, 2].detach().numpy()
+    a, b = edges[:, 0], edges[:, 1]
+    cross = (zv[a] - z) * (zv[b] - z) < 0
+    a, b = torch.from_numpy(a[cross]), torch.from_numpy(b[cross])
+    va, vb = v[a], v[b]
+    t = (z - va[:, 2]) / (vb[:, 2] - va[:, 2])
+    return (va + t[:, None] * (vb - va))[:, :2]
+
+
+def hull_perimeter(points: torch.Tensor) -> torch.Tensor:
+    """Perimeter of the convex hull of 2D points (the tape measure), differentiable."""
+    if points.shape[0] < 3:
+        return points.new_zeros(())
+    hull = ConvexHull(points.detach().numpy())
+    ring = torch.from_numpy(np.asarray(hull.vertices, dtype=np.int64))  # counter-clockwise
+    p = points[ring]
+    return torch.linalg.norm(p - torch.roll(p, 1, dims=0), dim=1).sum()
+
+
+def girth_at(v: torch.Tensor, edges: np.ndarray, z: float) -> torch.Tensor:
+    return hull_perimeter(slice_points(v, edges, z))
+
+
+def girth(shape: BodyShape, name: str, v: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
+    """(girth in m, height of the measuring plane in m) for 'chest', 'waist' or 'hip'."""
+    lo_bone, hi_bone, mode = GIRTH_BANDS[name]
+    v = shape.vertices if v is None else v
+    edges = torso_edges(shape)
+    lo, hi = float(shape.head(lo_bone)[2]), float(shape.head(hi_bone)[2])
+    if mode == "bust":
+        z = bust_height(shape, edges, lo, hi)
+        return girth_at(v, edges, z), z
+    levels = np.linspace(lo, hi, BAND_LEVELS)
+    with torch.no_grad():
+        values = np.array([float(girth_at(v.detach(), edges, z)) for z in levels])
+    k = int(np.argmax(values) if mode == "max" else np.argmin(values))
+    return girth_at(v, edges, float(levels[k])), float(levels[k])
+
+
+def bust_height(shape: BodyShape, edges: np.ndarray, lo: float, hi: float) -> float:
+    """Height of the most forward (-y) torso vertex between lo and hi, off the midline."""
+    v = shape.vertices.detach().numpy()
+    torso = np.zeros(len(v), dtype=bool)
+    torso[edges.ravel()] = True
+    sel = torso & (v[:, 2] > lo) & (v[:, 2] < hi) & (np.abs(v[:, 0]) > 0.04)
+    if not sel.any():
+        return 0.5 * (lo + hi)
+    return float(v[np.argmin(np.where(sel, v[:, 1], np.inf)), 2])
+
+
+def measurements(shape: BodyShape) -> dict[str, float]:
+    """Stature, mass, BMI and the three girths (cm, kg) of a rest-pose body."""
+    v = shape.vertices.detach()
+    out = {
+        "height_cm": 100.0 * float(stature(v)),
+        "weight_kg": float(mass(v, shape.faces)),
+        "bmi": float(bmi(v, shape.faces)),
+    }
+    for name in GIRTH_BANDS:
+        g, _ = girth(shape, name, v)
+        out[f"{name}_cm"] = 100.0 * float(g)
+    return out

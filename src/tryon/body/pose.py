@@ -1,0 +1,160 @@
+"""Posing by forward kinematics and linear blend skinning, for the body and for any mesh
+that borrows its skinning weights (a garment).
+
+A pose is one rotation per bone, `rotations [J,3,3]`, each about the bone's head and
+expressed in the world frame of the rest pose, applied parent first:
+    G_j = G_parent(j) · T(h_j) · R_j · T(-h_j),   G_root = T(root_translation) · T(h_0) · R_0 · T(-h_0)
+and a skinned point is x' = Σ_k w_k G_{b_k} x (Kavan et al. call this LBS). The identity
+pose is Anny's rest pose. `a_pose` / `t_pose` straighten the elbows and raise the arms to
+45 / 90 degrees from the body in the frontal plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tryon.body.anny_model import BodyShape
+from tryon.errors import TryonError
+
+ARM_SIDES = ("L", "R")  # Anny's .L bones lie at +x
+POSES = {"a": 45.0, "t": 90.0, "rest": None}
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotation [3,3] taking direction a to direction b."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1 + 1e-12:
+        axis = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        return axis_angle(axis / np.linalg.norm(axis) * np.pi)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1 + c)
+
+
+def axis_angle(r: np.ndarray) -> np.ndarray:
+    """Rotation matrices [...,3,3] from axis-angle vectors [...,3] (Rodrigues)."""
+    r = np.asarray(r, dtype=np.float64)
+    theta = np.linalg.norm(r, axis=-1, keepdims=True)
+    k = r / np.maximum(theta, 1e-12)
+    kx = np.zeros(r.shape[:-1] + (3, 3))
+    kx[..., 0, 1], kx[..., 0, 2] = -k[..., 2], k[..., 1]
+    kx[..., 1, 0], kx[..., 1, 2] = k[..., 2], -k[..., 0]
+    kx[..., 2, 0], kx[..., 2, 1] = -k[..., 1], k[..., 0]
+    s, c = np.sin(theta)[..., None], np.cos(theta)[..., None]
+    return np.eye(3) + s * kx + (1 - c) * (kx @ kx)
+
+
+def matrix_to_axis_angle(R: np.ndarray) -> np.ndarray:
+    """Axis-angle vectors [...,3] of rotation matrices [...,3,3] (angles below pi)."""
+    R = np.asarray(R, dtype=np.float64)
+    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)
+    theta = np.arccos(cos)
+    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    s = np.sin(theta)
+    scale = np.where(s > 1e-9, theta / np.maximum(2 * s, 1e-12), 0.5)
+    return w * scale[..., None]
+
+
+def identity_pose(shape: BodyShape) -> np.ndarray:
+    return np.tile(np.eye(3), (len(shape.bone_labels), 1, 1))
+
+
+def children_order(parents: list[int]) -> list[int]:
+    """Bones sorted so that every parent comes before its children."""
+    order, seen = [], set()
+
+    def visit(j: int) -> None:
+        if j in seen:
+            return
+        if parents[j] >= 0:
+            visit(parents[j])
+        seen.add(j)
+        order.append(j)
+
+    for j in range(len(parents)):
+        visit(j)
+    return order
+
+
+def bone_transforms(shape: BodyShape, rotations, root_translation=None) -> torch.Tensor:
+    """World transforms G [J,4,4] (torch, float64) of a pose (see the module docstring)."""
+    R = torch.as_tensor(np.asarray(rotations) if not torch.is_tensor(rotations) else rotations, dtype=torch.float64)
+    heads = shape.bone_heads.detach()
+    J = len(shape.bone_labels)
+    if R.shape != (J, 3, 3):
+        raise TryonError(f"a pose needs one 3x3 rotation per bone ({J}), got shape {tuple(R.shape)}")
+    local = torch.zeros((J, 4, 4), dtype=torch.float64)
+    local[:, :3, :3] = R
+    local[:, :3, 3] = heads - torch.einsum("jab,jb->ja", R, heads)
+    local[:, 3, 3] = 1.0
+    G = [None] * J
+    for j in children_order(shape.bone_parents):
+        p = shape.bone_parents[j]
+        G[j] = local[j] if p < 0 else G[p] @ local[j]
+    G = torch.stack(G)
+    if root_translation is not None:
+        G[:, :3, 3] += torch.as_tensor(np.asarray(root_translation), dtype=torch.float64)
+    return G
+
+
+def skin(points: torch.Tensor, weight_index: np.ndarray, weight: np.ndarray, G: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning of rest points [N,3] with per-point weights [N,K]."""
+    idx = torch.from_numpy(np.asarray(weight_index, dtype=np.int64))
+    w = torch.as_tensor(weight, dtype=torch.float64)
+    M = (w[..., None, None] * G[idx]).sum(1)  # [N,4,4]
+    return torch.einsum("nab,nb->na", M[:, :3, :3], points) + M[:, :3, 3]
+
+
+def posed_vertices(shape: BodyShape, rotations, root_translation=None) -> torch.Tensor:
+    return skin(shape.vertices, shape.weight_index, shape.weight, bone_transforms(shape, rotations, root_translation))
+
+
+def arm_pose(shape: BodyShape, angle_deg: float) -> np.ndarray:
+    """Rotations that straighten the elbows and put each arm (shoulder to wrist) at
+    `angle_deg` from the body's downward axis, in the frontal (x-z) plane."""
+    R = identity_pose(shape)
+    heads = shape.bone_heads.detach().numpy()
+    a = np.radians(angle_deg)
+    for side, sign in zip(ARM_SIDES, (1.0, -1.0)):
+        sh, el, wr = (shape.bone(f"{b}.{side}") for b in ("upperarm01", "lowerarm01", "wrist"))
+        upper = heads[el] - heads[sh]
+        lower = heads[wr] - heads[el]
+        R_elbow = rotation_between(lower, upper)
+        target = np.array([sign * np.sin(a), 0.0, -np.cos(a)])
+        R_shoulder = rotation_between(upper, target)
+        R[sh] = R_shoulder  # children compose as G_parent · local: the elbow straightens
+        R[el] = R_elbow  # in the rest frame, then the whole arm turns at the shoulder
+    return R
+
+
+def named_pose(shape: BodyShape, name: str) -> np.ndarray:
+    """'a' (arms 45 degrees), 't' (arms 90 degrees) or 'rest' (Anny's rest pose)."""
+    key = name.lower().replace("-pose", "").replace("pose", "") or name
+    if key not in POSES:
+        raise TryonError(f"unknown pose {name!r}; use one of a-pose, t-pose, rest")
+    if POSES[key] is None:
+        return identity_pose(shape)
+    return arm_pose(shape, POSES[key])
+
+
+def transfer_weights(points: np.ndarray, shape: BodyShape, vertices: np.ndarray | None = None, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Skinning weights for other points (a garment) from the body: inverse-distance blend
+    of the weights of the k nearest body vertices. Returns (index [N,K'], weight [N,K'])."""
+    from scipy.spatial import cKDTree
+
+    body = shape.vertices.detach().numpy() if vertices is None else vertices
+    dist, near = cKDTree(body).query(np.asarray(points), k=k)
+    inv = 1.0 / np.maximum(dist, 1e-4) ** 2
+    inv /= inv.sum(1, keepdims=True)
+    J = len(shape.bone_labels)
+    dense = np.zeros((len(points), J))
+    for c in range(k):
+        rows = np.repeat(np.arange(len(points))[:, None], shape.weight.shape[1], 1)
+        np.add.at(dense, (rows, shape.weight_index[near[:, c]]), inv[:, c, None] * shape.weight[near[:, c]])
+    K = shape.weight.shape[1]
+    top = np.argsort(-dense, axis=1)[:, :K]
+    w = np.take_along_axis(dense, top, 1)
+    return top, w / np.maximum(w.sum(1, keepdims=True), 1e-12)
