@@ -133,3 +133,64 @@ def measurements(shape: BodyShape) -> dict[str, float]:
         g, _ = girth(shape, name, v)
         out[f"{name}_cm"] = 100.0 * float(g)
     return out
+
+
+def _limb_girth(v: np.ndarray, mask: np.ndarray, centre: np.ndarray, axis: np.ndarray, band: float = 0.012) -> float:
+    """Convex-hull girth of the limb points within `band` of the plane through `centre`
+    perpendicular to `axis`."""
+    axis = axis / np.linalg.norm(axis)
+    d = (v - centre) @ axis
+    sel = mask & (np.abs(d) < band) & (np.linalg.norm(v - centre, axis=1) < 0.15)
+    if sel.sum() < 3:
+        return 0.0
+    p = v[sel] - centre
+    p = p - np.outer(p @ axis, axis)
+    e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    return float(hull_perimeter(torch.from_numpy(np.stack([p @ e1, p @ e2], 1))))
+
+
+def _bone_mask(shape: BodyShape, words: tuple[str, ...], side: str) -> np.ndarray:
+    match = np.array([any(w in lab for w in words) and lab.endswith(side) for lab in shape.bone_labels])
+    return (shape.weight * match[shape.weight_index]).sum(1) > 0.5
+
+
+def drafting_measurements(shape: BodyShape) -> dict[str, float]:
+    """What a pattern maker measures, in metres, on a rest-pose body (left side for limbs):
+    girths (chest, waist, hip, neck, bicep, wrist, thigh), heights above the floor
+    (stature, neck base, shoulder, chest, waist, hip, crotch, knee, ankle), shoulder width
+    (between the shoulder joints plus the deltoid), arm length (shoulder to wrist) and
+    the body depth at chest level."""
+    v = shape.vertices.detach().numpy()
+    vt = shape.vertices.detach()
+    edges = torso_edges(shape)
+    out = {"stature": float(v[:, 2].max())}
+    for name in GIRTH_BANDS:
+        g, z = girth(shape, name, vt)
+        out[f"{name}_girth"], out[f"{name}_height"] = float(g), z
+    head = {b: shape.head(b) for b in ("neck01", "upperarm01.L", "lowerarm01.L", "wrist.L", "upperleg02.L", "lowerleg01.L", "foot.L")}
+    out["neck_height"] = float(head["neck01"][2])
+    out["neck_girth"] = float(girth_at(vt, edges, out["neck_height"] + 0.01))
+    sh = head["upperarm01.L"]
+    near = np.abs(v[:, 0] - sh[0]) < 0.03
+    out["shoulder_height"] = float(v[near & (np.abs(v[:, 1] - sh[1]) < 0.06), 2].max())
+    out["shoulder_width"] = float(2.0 * sh[0] + 0.03)
+    out["arm_length"] = float(np.linalg.norm(head["lowerarm01.L"] - sh) + np.linalg.norm(head["wrist.L"] - head["lowerarm01.L"]))
+    arm = _bone_mask(shape, ("upperarm",), ".L")
+    fore = _bone_mask(shape, ("lowerarm", "wrist"), ".L")
+    out["bicep_girth"] = _limb_girth(v, arm, 0.5 * (sh + head["lowerarm01.L"]), head["lowerarm01.L"] - sh)
+    out["wrist_girth"] = _limb_girth(v, fore, head["wrist.L"] - 0.02 * (head["wrist.L"] - head["lowerarm01.L"]) / np.linalg.norm(head["wrist.L"] - head["lowerarm01.L"]), head["wrist.L"] - head["lowerarm01.L"])
+    mid = np.abs(v[:, 0]) < 0.015
+    torso = np.zeros(len(v), dtype=bool)
+    torso[edges.ravel()] = True
+    crotch = mid & torso & (v[:, 2] > head["lowerleg01.L"][2]) & (v[:, 2] < out["hip_height"])
+    out["crotch_height"] = float(v[crotch, 2].min()) if crotch.any() else float(head["upperleg02.L"][2] - 0.05)
+    leg = _bone_mask(shape, ("upperleg",), ".L")
+    out["thigh_girth"] = _limb_girth(v, leg, np.array([head["upperleg02.L"][0], head["upperleg02.L"][1], out["crotch_height"] - 0.03]),
+                                     head["lowerleg01.L"] - head["upperleg02.L"])
+    out["knee_height"] = float(head["lowerleg01.L"][2])
+    out["ankle_height"] = float(head["foot.L"][2])
+    chest = slice_points(vt, edges, out["chest_height"]).numpy()
+    out["chest_depth"] = float(chest[:, 1].max() - chest[:, 1].min()) if len(chest) else 0.25
+    return out

@@ -158,3 +158,9 @@ def transfer_weights(points: np.ndarray, shape: BodyShape, vertices: np.ndarray 
     top = np.argsort(-dense, axis=1)[:, :K]
     w = np.take_along_axis(dense, top, 1)
     return top, w / np.maximum(w.sum(1, keepdims=True), 1e-12)
+
+
+def posed_heads(shape: BodyShape, G: torch.Tensor) -> np.ndarray:
+    """Bone heads [J,3] after the bone transforms G (each head moves with its own bone)."""
+    h = shape.bone_heads.detach()
+    return (torch.einsum("jab,jb->ja", G[:, :3, :3], h) + G[:, :3, 3]).numpy()

@@ -69,7 +69,8 @@ class ImplicitEulerSolver:
         self.fabric = fabric or model.fabric
         faces = model.faces.numpy()
         hinges = model.hinges.numpy()
-        self.pattern = BlockPattern(model.num_vertices, [faces, hinges])
+        self._stitches = model.stitches.numpy()
+        self.pattern = BlockPattern(model.num_vertices, [faces, hinges, self._stitches.reshape(-1, 2)])
         self.linear = LinearSolver(self.pattern, self.options.linear_solver, tol=self.options.pcg_tol)
         self.mass = model.mass(self.fabric).detach().numpy().astype(np.float64)
         self.pinned_mask = np.zeros(model.num_vertices, dtype=bool)
@@ -176,9 +177,25 @@ class ImplicitEulerSolver:
         scatter_element_blocks(H, self.pattern.element_maps[1], np.ascontiguousarray(h_bend.numpy()), 4)
         if d_wind is not None:
             scatter_element_blocks(D, self.pattern.element_maps[0], np.ascontiguousarray(d_wind.numpy()), 3)
+        if len(self._stitches) and m.stitch_stiffness > 0:
+            self._add_stitches(x.numpy(), f, H)
         if m.damping > 0:
             D += m.damping * H
+        if m.air_damping > 0:
+            D[self.pattern.diag_block] += m.air_damping * self._mass_blocks
+            f -= m.air_damping * self.mass[:, None] * v.numpy()
         return H, D, f
+
+    def _add_stitches(self, x: np.ndarray, f: np.ndarray, H: np.ndarray) -> None:
+        """Zero-length springs E = k/2 |x_i - x_j|^2 between stitched vertices (sewing)."""
+        k = self.model.stitch_stiffness
+        i, j = self._stitches[:, 0], self._stitches[:, 1]
+        pull = k * (x[i] - x[j])
+        np.add.at(f, i, -pull)
+        np.add.at(f, j, pull)
+        block = k * np.kron(np.array([[1.0, -1.0], [-1.0, 1.0]]), np.eye(3))
+        hess = np.ascontiguousarray(np.broadcast_to(block, (len(i), 6, 6)))
+        scatter_element_blocks(H, self.pattern.element_maps[2], hess, 2)
 
     def _proximity(self, x: np.ndarray, ob1: np.ndarray):
         m = self.model

@@ -21,20 +21,33 @@ DTYPE = torch.float64
 
 @dataclass
 class ClothMesh:
-    """A validated cloth mesh: positions x [N,3], material coords uv [N,2] (m), faces [F,3]."""
+    """A validated cloth mesh: positions x [N,3], material coords uv [N,2] (m), faces [F,3].
+
+    `face_uv` [F,3,2], when given, holds material coordinates per face corner and takes
+    precedence over `uv` for the rest shape: a garment whose seams are welded has vertices
+    that belong to two panels, each with its own pattern coordinates."""
 
     x: torch.Tensor
     uv: torch.Tensor
     faces: torch.Tensor
     name: str = "cloth"
+    face_uv: torch.Tensor | None = None
     edges: torch.Tensor = field(init=False)
 
     def __post_init__(self) -> None:
         self.x = torch.as_tensor(self.x, dtype=DTYPE).contiguous()
         self.uv = torch.as_tensor(self.uv, dtype=DTYPE).contiguous()
         self.faces = torch.as_tensor(self.faces, dtype=torch.int64).contiguous()
-        validate_mesh(self.x, self.uv, self.faces, self.name)
+        if self.face_uv is not None:
+            self.face_uv = torch.as_tensor(self.face_uv, dtype=DTYPE).contiguous()
+            if tuple(self.face_uv.shape) != (self.faces.shape[0], 3, 2):
+                raise MeshError(f"{self.name}: face_uv must have shape [F,3,2] = [{self.faces.shape[0]},3,2], got {tuple(self.face_uv.shape)}")
+        validate_mesh(self.x, self.uv, self.faces, self.name, self.face_uv)
         self.edges = unique_edges(self.faces)
+
+    def corner_uv(self) -> torch.Tensor:
+        """Material coordinates of every face corner [F,3,2]."""
+        return self.face_uv if self.face_uv is not None else self.uv[self.faces]
 
     @property
     def num_vertices(self) -> int:
@@ -57,7 +70,7 @@ def unique_edges(faces: torch.Tensor) -> torch.Tensor:
     return torch.unique(e, dim=0)
 
 
-def validate_mesh(x: torch.Tensor, uv: torch.Tensor, faces: torch.Tensor, name: str) -> None:
+def validate_mesh(x: torch.Tensor, uv: torch.Tensor, faces: torch.Tensor, name: str, face_uv: torch.Tensor | None = None) -> None:
     """Raise MeshError naming the first problem found in a cloth mesh."""
     if x.ndim != 2 or x.shape[1] != 3:
         raise MeshError(f"{name}: vertex positions must have shape [N,3], got {tuple(x.shape)}")
@@ -70,6 +83,8 @@ def validate_mesh(x: torch.Tensor, uv: torch.Tensor, faces: torch.Tensor, name: 
         raise MeshError(f"{name}: faces must be a non-empty [F,3] array, got {tuple(faces.shape)}")
     if int(faces.min()) < 0 or int(faces.max()) >= x.shape[0]:
         raise MeshError(f"{name}: face indices must lie in [0, {x.shape[0] - 1}]")
+    if face_uv is not None and not bool(torch.isfinite(face_uv).all()):
+        raise MeshError(f"{name}: face_uv holds NaN or infinite material coordinates")
     bad = ~torch.isfinite(x).all(1) | ~torch.isfinite(uv).all(1)
     if bool(bad.any()):
         i = int(torch.nonzero(bad)[0])
@@ -78,12 +93,12 @@ def validate_mesh(x: torch.Tensor, uv: torch.Tensor, faces: torch.Tensor, name: 
     if bool(repeated.any()):
         f = int(torch.nonzero(repeated)[0])
         raise MeshError(f"{name}: face {f} repeats a vertex {faces[f].tolist()}")
-    _check_areas(x, uv, faces, name)
+    _check_areas(x, uv[faces] if face_uv is None else face_uv, faces, name)
     _check_manifold(faces, name)
 
 
-def _check_areas(x: torch.Tensor, uv: torch.Tensor, faces: torch.Tensor, name: str) -> None:
-    u0, u1, u2 = (uv[faces[:, k]] for k in range(3))
+def _check_areas(x: torch.Tensor, corner_uv: torch.Tensor, faces: torch.Tensor, name: str) -> None:
+    u0, u1, u2 = (corner_uv[:, k] for k in range(3))
     d1, d2 = u1 - u0, u2 - u0
     uv_area = 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]).abs()
     p0, p1, p2 = (x[faces[:, k]] for k in range(3))

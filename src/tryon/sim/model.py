@@ -12,7 +12,7 @@ import torch
 
 from tryon.errors import SceneError
 from tryon.fabric.base import Fabric
-from tryon.sim.forces.geometry import build_hinges, hinge_rest_data, rest_state
+from tryon.sim.forces.geometry import build_hinges, hinge_rest_data_corners, rest_state
 from tryon.sim.mesh import DTYPE, ClothMesh
 from tryon.sim.obstacles import Motion, Obstacle, ObstacleSet
 
@@ -81,6 +81,9 @@ class ClothModel:
         obstacles: list[Obstacle] | None = None,
         collision: CollisionSettings | None = None,
         damping: float = 0.0,
+        stitches: torch.Tensor | None = None,
+        stitch_stiffness: float = 0.0,
+        air_damping: float = 0.0,
     ):
         self.mesh = mesh
         self.fabric = fabric
@@ -92,14 +95,31 @@ class ClothModel:
         self.damping = float(damping)
         self.faces = mesh.faces
         self.edges = mesh.edges
-        self.Dm_inv, self.rest_area = rest_state(mesh.uv, mesh.faces)
-        self.hinges = build_hinges(mesh.faces)
-        hd = hinge_rest_data(None, mesh.uv, mesh.faces, self.hinges)
+        corners = mesh.corner_uv()
+        F = corners.shape[0]
+        self.Dm_inv, self.rest_area = rest_state(corners.reshape(-1, 2), torch.arange(3 * F).reshape(F, 3))
+        self.hinges, hinge_faces = build_hinges(mesh.faces, return_faces=True)
+        hd = hinge_rest_data_corners(corners, mesh.faces, self.hinges, hinge_faces)
         self.hinge_rest_theta = hd["rest_theta"]
         self.hinge_area_sum = hd["area_sum"]
         self.hinge_edge_dir_uv = hd["edge_dir_uv"]
         self.vertex_area = self._vertex_areas()
         self.pinned = self._pinned_indices()
+        self.stitches = self._checked_stitches(stitches)
+        self.stitch_stiffness = float(stitch_stiffness)
+        self.air_damping = float(air_damping)  # 1/s: force -c m v (still air, e.g. while sewing)
+
+    def _checked_stitches(self, stitches) -> torch.Tensor:
+        """Vertex pairs [S,2] pulled together by zero-length springs (sewing seams)."""
+        if stitches is None:
+            return torch.zeros((0, 2), dtype=torch.int64)
+        st = torch.as_tensor(stitches, dtype=torch.int64)
+        n = self.mesh.num_vertices
+        if st.ndim != 2 or st.shape[1] != 2 or (len(st) and (int(st.min()) < 0 or int(st.max()) >= n)):
+            raise SceneError(f"stitches must be vertex index pairs [S,2] in [0, {n - 1}]")
+        if len(st) and bool((st[:, 0] == st[:, 1]).any()):
+            raise SceneError("a stitch joins a vertex to itself")
+        return st
 
     def _vertex_areas(self) -> torch.Tensor:
         n = self.mesh.num_vertices

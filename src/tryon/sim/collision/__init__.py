@@ -24,7 +24,7 @@ from tryon.sim.collision.contacts import (
     Contacts,
 )
 from tryon.sim.collision.impact_zones import CollisionReport, resolve_collisions, rigid_impact_zone_fallback
-from tryon.sim.collision.intersections import count_intersections, min_obstacle_distance, signed_obstacle_distance
+from tryon.sim.collision.intersections import count_intersections, min_obstacle_distance, nearest_surface_points, signed_obstacle_distance
 from tryon.sim.collision.proximity import find_proximities
 from tryon.sim.collision.qp import QPResult, solve_projection
 
@@ -42,6 +42,7 @@ __all__ = [
     "find_impacts",
     "find_proximities",
     "min_obstacle_distance",
+    "nearest_surface_points",
     "overlapping_pairs",
     "QPResult",
     "solve_projection",

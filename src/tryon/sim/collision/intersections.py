@@ -168,3 +168,17 @@ def _pseudonormal(ob: np.ndarray, ob_faces: np.ndarray, face: np.ndarray, bary: 
         slot = (np.argmax(zero[on_edge], 1) + 1) % 3  # edge (v_k, v_k+1) lies opposite corner k+2
         out[on_edge] = edge_normals(ob, ob_faces, edges)[fe[face[on_edge], slot]]
     return out
+
+
+def nearest_surface_points(x: Any, ob: Any, ob_faces: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every point: signed distance [N] (negative inside), closest surface point [N,3]
+    and the outward pseudonormal there [N,3]."""
+    x = as_points(x, "points")
+    ob = as_points(ob, "obstacle positions")
+    ob_faces = as_index(ob_faces, 3, "obstacle faces", len(ob))
+    dist, face, bary = _nearest(x, ob, ob_faces)
+    q = np.einsum("nk,nkd->nd", bary, ob[ob_faces[face]])
+    normal = _pseudonormal(ob, ob_faces, face, bary)
+    side = np.sign(np.sum((x - q) * normal, 1))
+    side[side == 0] = 1.0
+    return side * dist, q, normal

@@ -206,6 +206,26 @@ def hinge_rest_data(
     return {"rest_theta": rest_theta, "area_sum": area0 + area1, "edge_dir_uv": u1 - u0}
 
 
+def hinge_rest_data_corners(
+    corner_uv: torch.Tensor, faces: torch.Tensor, hinges: torch.Tensor, hinge_faces: torch.Tensor
+) -> dict[str, torch.Tensor]:
+    """`hinge_rest_data` (flat rest shape) from material coordinates per face corner
+    [F,3,2]: the areas come from each hinge face's own corners and the edge direction
+    from the first face's, so a hinge across a welded seam sees both panels' patterns."""
+    f0, f1 = hinge_faces[:, 0], hinge_faces[:, 1]
+
+    def area(f: torch.Tensor) -> torch.Tensor:
+        c = corner_uv[f]
+        return 0.5 * _cross2(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]).abs()
+
+    def corner_of(f: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        k = (faces[f] == v[:, None]).to(torch.int64).argmax(1)
+        return corner_uv[f, k]
+
+    edge_dir = corner_of(f0, hinges[:, 1]) - corner_of(f0, hinges[:, 0])
+    return {"rest_theta": torch.zeros(hinges.shape[0], dtype=DTYPE), "area_sum": area(f0) + area(f1), "edge_dir_uv": edge_dir}
+
+
 def _check_hinges(hinges: torch.Tensor, num_vertices: int) -> torch.Tensor:
     if not isinstance(hinges, torch.Tensor) or hinges.ndim != 2 or hinges.shape[1] != 4:
         shape = tuple(hinges.shape) if isinstance(hinges, torch.Tensor) else type(hinges).__name__

@@ -1,0 +1,8 @@
+"""Garments from sewing patterns: the pattern model, parametric drafts in standard and
+made-to-measure sizes, triangulation with matched seams, and dressing on a body."""
+
+from tryon.garment.drafts import GARMENTS, Ease, draft
+from tryon.garment.pattern import Edge, Panel, Pattern, PatternError, Seam
+from tryon.garment.sizes import SIZES, size_measurements
+
+__all__ = ["GARMENTS", "SIZES", "Ease", "Edge", "Panel", "Pattern", "PatternError", "Seam", "draft", "size_measurements"]

@@ -1,0 +1,304 @@
+"""Parametric pattern drafts from body measurements and ease.
+
+Each draft takes `drafting_measurements` of a body (metres, see tryon.body.measure) and
+an `Ease` and returns a `Pattern` whose panels carry their placement on the body:
+`tshirt`, `longsleeve`, `skirt`, `trousers`, `dress`. The constructions are simplified
+block patterns in the usual way of flat pattern making (Aldrich, "Metric Pattern Cutting"):
+a straight bodice block with a curved armhole and neckline, a sleeve whose cap length
+matches the armhole, a two-panel skirt, a four-panel trouser with crotch extensions.
+
+Panel coordinates: x across (the body's left towards +x on front panels, seen from the
+outside), y up, origin at the hem centre; all outlines counter-clockwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from tryon.errors import TryonError
+from tryon.garment.pattern import Edge, Panel, Pattern, Seam
+
+GARMENTS = ("tshirt", "longsleeve", "skirt", "trousers", "dress")
+
+
+@dataclass
+class Ease:
+    """Ease (m) added to body girths, and style lengths."""
+
+    chest: float = 0.10
+    waist: float = 0.04
+    hip: float = 0.06
+    bicep: float = 0.08
+    neck_width: float = 0.04
+    short_sleeve: float = 0.20
+    top_below_hip: float = 0.04
+    skirt_below_knee: float = 0.02
+
+
+def bezier(name: str, p0, p1, p2, p3) -> Edge:
+    return Edge(name, np.array([p0, p1, p2, p3], dtype=float), "bezier")
+
+
+def line(name: str, p0, p1) -> Edge:
+    return Edge(name, np.array([p0, p1], dtype=float), "line")
+
+
+def mirror_edges(edges: list[Edge]) -> list[Edge]:
+    """Mirror in x (x -> -x), keeping the outline counter-clockwise: the edge order and
+    each edge's direction reverse, and _l / _r in names swap."""
+    out = []
+    for e in reversed(edges):
+        name = e.name.replace("_l", "_TMP").replace("_r", "_l").replace("_TMP", "_r")
+        out.append(Edge(name, (e.points * [-1.0, 1.0])[::-1], e.kind))
+    return out
+
+
+def symmetric_panel(name: str, right_half: list[Edge], placement: dict, merge_top: bool = True) -> Panel:
+    """A panel symmetric about x = 0 from the edges of its right half (x >= 0), given
+    counter-clockwise from the hem centre up to the top centre. The two halves of the
+    bottom edge (and of the top edge when `merge_top`) become one edge."""
+    first, last = right_half[0], right_half[-1]
+    if abs(first.start[0]) > 1e-9 or abs(last.end[0]) > 1e-9:
+        raise TryonError(f"panel {name}: the right half must start and end on the centre line")
+    left = mirror_edges(right_half)
+    bottom = _merge(left[-1], first, first.name.replace("_r", ""))
+    if merge_top:
+        top = _merge(last, left[0], last.name.replace("_r", ""))
+        edges = [bottom] + right_half[1:-1] + [top] + left[1:-1]
+    else:
+        edges = [bottom] + right_half[1:] + left[:-1]
+    return Panel(name, edges, (0.0, 1.0), placement)
+
+
+def _merge(a: Edge, b: Edge, name: str) -> Edge:
+    """Join two edges meeting on the centre line into one (a line or a bezier)."""
+    if a.kind == "line" and b.kind == "line":
+        return line(name, a.start, b.end)
+    # a smooth curve through both halves: a cubic through the outer ends with tangents
+    pa, pb = a.points, b.points
+    return bezier(name, pa[0], pa[0] + 2.0 * (pa[1] - pa[0]), pb[-1] + 2.0 * (pb[-2] - pb[-1]), pb[-1])
+
+
+# --------------------------------------------------------------------------- bodice
+@dataclass
+class BodiceDims:
+    length: float          # hem to neck point (side of the neck), along the body
+    half_chest: float      # panel half width at the chest
+    half_hem: float
+    armhole_depth: float   # shoulder point down to the underarm
+    shoulder_x: float      # shoulder point
+    shoulder_drop: float
+    neck_x: float          # half neck width
+    neck_depth_front: float
+    neck_depth_back: float
+    waist_y: float | None = None   # fitted waist (dress)
+    half_waist: float | None = None
+
+
+def bodice_dims(m: dict, ease: Ease, hem_height: float) -> BodiceDims:
+    shoulder_top = m["shoulder_height"]
+    neck_point = m["neck_height"] + 0.01
+    length = neck_point - hem_height
+    half_chest = (m["chest_girth"] + ease.chest) / 4.0
+    half_hem = max(half_chest, (m["hip_girth"] + ease.hip) / 4.0) if hem_height < m["hip_height"] + 0.05 else half_chest
+    return BodiceDims(
+        length=length,
+        half_chest=half_chest,
+        half_hem=half_hem,
+        armhole_depth=max(0.17, shoulder_top - m["chest_height"] + 0.02),
+        shoulder_x=m["shoulder_width"] / 2.0 + 0.01,
+        shoulder_drop=max(0.02, neck_point - shoulder_top),
+        neck_x=m["neck_girth"] / 6.0 + ease.neck_width / 2.0,
+        neck_depth_front=0.08,
+        neck_depth_back=0.02,
+    )
+
+
+def bodice_half(d: BodiceDims, front: bool, sleeveless: bool = False) -> list[Edge]:
+    """Right half of a front/back bodice, counter-clockwise from the hem centre."""
+    L, W = d.length, d.half_chest
+    y_under = L - d.shoulder_drop - d.armhole_depth
+    sx, sy = d.shoulder_x - (0.02 if sleeveless else 0.0), L - d.shoulder_drop
+    nd = d.neck_depth_front if front else d.neck_depth_back
+    edges = [line("hem_r", (0.0, 0.0), (d.half_hem, 0.0))]
+    if d.waist_y is not None:
+        edges.append(line("skirt_side_r", (d.half_hem, 0.0), (d.half_waist, d.waist_y)))
+        edges.append(bezier("side_r", (d.half_waist, d.waist_y), (d.half_waist, d.waist_y + 0.35 * (y_under - d.waist_y)),
+                            (W, y_under - 0.3 * (y_under - d.waist_y)), (W, y_under)))
+    else:
+        edges.append(line("side_r", (d.half_hem, 0.0), (W, y_under)))
+    edges.append(bezier("armhole_r", (W, y_under), (sx + 0.35 * (W - sx), y_under), (sx, sy - 0.55 * (sy - y_under)), (sx, sy)))
+    edges.append(line("shoulder_r", (sx, sy), (d.neck_x, L)))
+    edges.append(bezier("neck_r", (d.neck_x, L), (d.neck_x, L - 0.55 * nd), (0.55 * d.neck_x, L - nd), (0.0, L - nd)))
+    return edges
+
+
+def _bodice_panels(d: BodiceDims, top_height: float, sleeveless: bool = False) -> list[Panel]:
+    place = {"part": "torso", "top_z": top_height}
+    front = symmetric_panel("front", bodice_half(d, True, sleeveless), dict(place, side="front"))
+    back = symmetric_panel("back", bodice_half(d, False, sleeveless), dict(place, side="back"))
+    return [front, back]
+
+
+def _bodice_seams(with_waist: bool) -> list[Seam]:
+    # front side_r (body's left, +x) meets back side_l (seen from behind, also the body's left)
+    seams = [
+        Seam(("front", "side_r"), ("back", "side_l"), reverse=True),
+        Seam(("front", "side_l"), ("back", "side_r"), reverse=True),
+        Seam(("front", "shoulder_r"), ("back", "shoulder_l"), reverse=True),
+        Seam(("front", "shoulder_l"), ("back", "shoulder_r"), reverse=True),
+    ]
+    if with_waist:
+        seams += [
+            Seam(("front", "skirt_side_r"), ("back", "skirt_side_l"), reverse=True),
+            Seam(("front", "skirt_side_l"), ("back", "skirt_side_r"), reverse=True),
+        ]
+    return seams
+
+
+# --------------------------------------------------------------------------- sleeve
+def sleeve_panel(name: str, limb: str, cap_half_length: float, width: float, hem_width: float, length: float) -> Panel:
+    """Sleeve with a symmetric cap whose half-curves are `cap_half_length` long (to match
+    the armholes), bicep `width`, hem `hem_width`, total `length` (cap top to hem)."""
+    def cap_right(h: float) -> Edge:
+        return bezier("cap_r", (width / 2, length - h), (width / 2 - 0.25 * width, length - h + 0.15 * h),
+                      (0.22 * width, length), (0.0, length))
+
+    lo, hi = 0.02, min(length - 0.03, 0.9 * cap_half_length)
+    for _ in range(60):  # bisection on the cap height so the cap matches the armhole
+        h = 0.5 * (lo + hi)
+        if cap_right(h).length() < cap_half_length:
+            lo = h
+        else:
+            hi = h
+    h = 0.5 * (lo + hi)
+    right = [line("hem_r", (0.0, 0.0), (hem_width / 2, 0.0)),
+             line("underarm_r", (hem_width / 2, 0.0), (width / 2, length - h)),
+             cap_right(h)]
+    return symmetric_panel(name, right, {"part": "arm", "limb": limb, "cap_height": h}, merge_top=False)
+
+
+def _sleeves(m: dict, ease: Ease, armhole_front: float, armhole_back: float, length: float, hem_width: float) -> list[Panel]:
+    width = max(m["bicep_girth"], 0.3 * m["chest_girth"]) + ease.bicep
+    half = 0.5 * (armhole_front + armhole_back)
+    return [sleeve_panel(f"sleeve_{s}", s, half, width, hem_width, length) for s in ("L", "R")]
+
+
+def _sleeve_seams() -> list[Seam]:
+    # Sleeve panels are seen from the outside with the cap on top; the body's front is on
+    # the panel's -x half for the left sleeve and on its +x half for the right sleeve.
+    return [
+        Seam(("sleeve_L", "underarm_r"), ("sleeve_L", "underarm_l"), reverse=True),
+        Seam(("sleeve_R", "underarm_r"), ("sleeve_R", "underarm_l"), reverse=True),
+        Seam(("sleeve_L", "cap_l"), ("front", "armhole_r"), reverse=True),
+        Seam(("sleeve_L", "cap_r"), ("back", "armhole_l"), reverse=True),
+        Seam(("sleeve_R", "cap_r"), ("front", "armhole_l"), reverse=True),
+        Seam(("sleeve_R", "cap_l"), ("back", "armhole_r"), reverse=True),
+    ]
+
+
+# --------------------------------------------------------------------------- garments
+def draft_top(m: dict, ease: Ease, long_sleeves: bool) -> Pattern:
+    hem_height = m["hip_height"] - ease.top_below_hip
+    d = bodice_dims(m, ease, hem_height)
+    panels = _bodice_panels(d, m["neck_height"] + 0.01)
+    front, back = panels
+    af, ab = front.edge("armhole_r").length(), back.edge("armhole_r").length()
+    if long_sleeves:
+        length, hem = m["arm_length"] + 0.03, m["wrist_girth"] + 0.07
+    else:
+        length = ease.short_sleeve
+        hem = max(m["bicep_girth"], 0.3 * m["chest_girth"]) + ease.bicep - 0.02
+    panels += _sleeves(m, ease, af, ab, length, hem)
+    name = "longsleeve" if long_sleeves else "tshirt"
+    return Pattern(name, panels, _bodice_seams(False) + _sleeve_seams())
+
+
+def draft_dress(m: dict, ease: Ease) -> Pattern:
+    hem_height = m["knee_height"] - ease.skirt_below_knee
+    d = bodice_dims(m, ease, hem_height)
+    d.waist_y = m["waist_height"] - hem_height
+    d.half_waist = (m["waist_girth"] + ease.waist + 0.04) / 4.0
+    d.half_hem = (m["hip_girth"] + ease.hip) / 4.0 + 0.06
+    panels = _bodice_panels(d, m["neck_height"] + 0.01, sleeveless=True)
+    return Pattern("dress", panels, _bodice_seams(True))
+
+
+def draft_skirt(m: dict, ease: Ease) -> Pattern:
+    hem_height = m["knee_height"] - ease.skirt_below_knee
+    length = m["waist_height"] - hem_height
+    hip_y = length - (m["waist_height"] - m["hip_height"])
+    hw = (m["waist_girth"] + ease.waist) / 4.0
+    hh = (m["hip_girth"] + ease.hip) / 4.0
+    hem = hh + 0.03
+    right = [
+        line("hem_r", (0.0, 0.0), (hem, 0.0)),
+        bezier("side_r", (hem, 0.0), (hh, 0.45 * hip_y), (hh + 0.01, hip_y + 0.3 * (length - hip_y)), (hw, length)),
+        line("waist_r", (hw, length), (0.0, length - 0.01)),
+    ]
+    place = {"part": "torso", "top_z": m["waist_height"]}
+    front = symmetric_panel("front", right, dict(place, side="front"))
+    back = symmetric_panel("back", right, dict(place, side="back"))
+    seams = [Seam(("front", "side_r"), ("back", "side_l"), reverse=True),
+             Seam(("front", "side_l"), ("back", "side_r"), reverse=True)]
+    return Pattern("skirt", [front, back], seams)
+
+
+def trouser_leg(name: str, m: dict, ease: Ease, front: bool, limb: str) -> Panel:
+    """One trouser panel drafted as the body's left leg seen from its side (front or
+    back), outseam on +x, then mirrored for the right leg."""
+    length = m["waist_height"] - m["ankle_height"]
+    inseam = m["crotch_height"] - m["ankle_height"]
+    crotch_y = inseam
+    hip_y = length - (m["waist_height"] - m["hip_height"])
+    quarter_hip = (m["hip_girth"] + ease.hip) / 4.0
+    quarter_waist = (m["waist_girth"] + ease.waist) / 4.0
+    ext = quarter_hip * (0.28 if front else 0.45)  # crotch extension
+    knee_half = max(m["thigh_girth"] * 0.32, 0.10) + (0.0 if front else 0.01)
+    hem_half = knee_half - 0.01
+    # the leg's crease at x = 0: outseam on +x, inseam and crotch on -x
+    out_hip = quarter_hip * 0.55
+    in_top = -(quarter_hip * 0.45)
+    edges = [
+        line("hem", (-hem_half, 0.0), (hem_half, 0.0)),
+        bezier("outseam", (hem_half, 0.0), (knee_half, 0.45 * crotch_y), (out_hip + 0.01, hip_y - 0.08), (in_top + quarter_waist + 0.01, length)),
+        line("waist", (in_top + quarter_waist + 0.01, length), (in_top + 0.01, length)),
+        bezier("crotch", (in_top + 0.01, length), (in_top, hip_y - 0.02), (in_top - 0.3 * ext, crotch_y + 0.02), (in_top - ext, crotch_y)),
+        bezier("inseam", (in_top - ext, crotch_y), (-knee_half - 0.02, 0.6 * crotch_y), (-knee_half, 0.4 * crotch_y), (-hem_half, 0.0)),
+    ]
+    if limb == "R":
+        edges = mirror_edges(edges)
+    side = "front" if front else "back"
+    if not front:  # back panels are seen from behind: the left leg lies on the panel's -x
+        edges = mirror_edges(edges)
+    return Panel(name, edges, (0.0, 1.0), {"part": "leg", "limb": limb, "side": side, "top_z": m["waist_height"]})
+
+
+def draft_trousers(m: dict, ease: Ease) -> Pattern:
+    panels = [trouser_leg(f"{s}_{l}", m, ease, s == "front", l) for s in ("front", "back") for l in ("L", "R")]
+    seams = [
+        Seam(("front_L", "outseam"), ("back_L", "outseam"), reverse=True),
+        Seam(("front_R", "outseam"), ("back_R", "outseam"), reverse=True),
+        Seam(("front_L", "inseam"), ("back_L", "inseam"), reverse=True),
+        Seam(("front_R", "inseam"), ("back_R", "inseam"), reverse=True),
+        Seam(("front_L", "crotch"), ("front_R", "crotch"), reverse=True),
+        Seam(("back_L", "crotch"), ("back_R", "crotch"), reverse=True),
+    ]
+    return Pattern("trousers", panels, seams)
+
+
+def draft(garment: str, measurements: dict, ease: Ease | None = None, size: str | None = None, meta: dict | None = None) -> Pattern:
+    """Draft `garment` (one of GARMENTS) for body `measurements` (metres)."""
+    ease = ease or Ease()
+    makers = {"tshirt": lambda: draft_top(measurements, ease, False), "longsleeve": lambda: draft_top(measurements, ease, True),
+              "skirt": lambda: draft_skirt(measurements, ease), "trousers": lambda: draft_trousers(measurements, ease),
+              "dress": lambda: draft_dress(measurements, ease)}
+    if garment not in makers:
+        raise TryonError(f"unknown garment {garment!r}; available: {', '.join(GARMENTS)}")
+    pattern = makers[garment]()
+    pattern.meta.update({"garment": garment, "size": size, "ease_m": asdict(ease),
+                         "body_measurements_cm": {k: round(100 * v, 1) for k, v in measurements.items()}})
+    pattern.meta.update(meta or {})
+    return pattern
