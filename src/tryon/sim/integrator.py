@@ -28,6 +28,10 @@ from tryon.sim.forces.wind import wind_forces
 from tryon.sim.linear import BlockPattern, LinearSolver, add_diagonal_blocks, bsr_matvec, scatter_element_blocks
 from tryon.sim.model import ClothModel, ClothState, Control
 
+# relative tangential speed (m/s) below which friction turns from Coulomb's constant force
+# into viscous sticking: a resting contact creeps at most this fast
+FRICTION_SLIP_SPEED = 1e-3
+
 
 @dataclass
 class StepOptions:
@@ -118,6 +122,8 @@ class ImplicitEulerSolver:
         contacts = self._proximity(x, ob1)
         stats.contacts = 0 if contacts is None else len(contacts)
         active = self._add_contact_terms(contacts, x, v, ob1, H, f) if stats.contacts else None
+        if active is not None:
+            self._add_friction_terms(active, v, ob0, ob1, dt, D, f)
         stats.seconds["forces"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
@@ -135,9 +141,6 @@ class ImplicitEulerSolver:
             return state, False, stats
 
         v_new = v + dv
-        if active is not None:
-            self._apply_friction(active, v_new, ob0, ob1, dt)
-            v_new[self.pinned_mask] = v[self.pinned_mask] + fixed_dv
         x_new = x + dt * v_new
         x_new[self.pinned_mask] = targets
 
@@ -197,6 +200,20 @@ class ImplicitEulerSolver:
         hess = np.ascontiguousarray(np.broadcast_to(block, (len(i), 6, 6)))
         scatter_element_blocks(H, self.pattern.element_maps[2], hess, 2)
 
+    def obstacle_contact_forces(self, x: np.ndarray, t: float) -> np.ndarray:
+        """Repulsion force [N,3] the obstacles apply to each cloth vertex at positions x
+        (the penalty of step 3 at rest; divide by vertex area for contact pressure)."""
+        m = self.model
+        ob = m.obstacles.vertices_at(t)
+        f = np.zeros_like(x)
+        if len(ob) == 0:
+            return f
+        c = col.find_proximities(x, self._faces_np, self._edges_np, ob, m.obstacles.faces, m.obstacles.edges,
+                                 m.collision.thickness, self_collision=False)
+        if len(c):
+            self._add_contact_terms(c, x, np.zeros_like(x), ob, self.pattern.zeros(), f)
+        return f
+
     def _proximity(self, x: np.ndarray, ob1: np.ndarray):
         m = self.model
         if not (self.options.collisions and m.collision.enabled):
@@ -237,38 +254,36 @@ class ImplicitEulerSolver:
         act.stiff = stiff
         return act
 
-    def _apply_friction(self, act, v_new, ob0, ob1, dt) -> None:
-        """Coulomb friction as a velocity filter after the solve (Bridson, Fedkiw & Anderson
-        2002), per cloth vertex: the change that would stop the relative tangential motion
-        of its contacts (their force-weighted mean) is applied up to the friction budget
-        mu*dt*sum(fn)/m, so vertices inside the friction cone stick and the others slide.
-        fn is the end-of-step normal force the implicit solve applied (the penalty
-        linearised at the new velocities), not the start-of-step penalty, which is far too
-        large in the step where a fast vertex enters the contact layer."""
+    def _add_friction_terms(self, act, v, ob0, ob1, dt, D, f) -> None:
+        """Coulomb friction as a force in the implicit solve, lagged and regularised (as in
+        ARCSim's friction and IPC's lagged friction): on each contact with normal force fn
+        and relative tangential velocity vt at the start of the step,
+            f_k = -w_k c P (sum_l w_l v_l),   c = mu fn / max(|vt|, slip speed),
+        P = I - n n^T, with its velocity Jacobian -c w_k w_l P lumped onto the diagonal
+        (a Gershgorin bound, like the contact penalty). A sliding contact feels mu fn
+        against its motion; a resting one is damped so hard that it creeps at most at the
+        slip speed; and the friction force is balanced against the elastic forces inside
+        the solve, so it can never hold a stiff fabric against more than mu fn."""
         cs = self.model.collision
         vel_ob = (ob1 - ob0) / dt if len(ob1) else np.zeros((1, 3))
-        vel = np.where(act.is_cloth[..., None], v_new[act.cloth_i], vel_ob[act.ob_i])
-        cloth_vel = np.where(act.is_cloth[..., None], vel, 0.0)
-        gap_change = dt * np.einsum("ck,ckd,cd->c", act.w, cloth_vel, act.n)
-        fn_end = np.maximum(act.fn - act.stiff * gap_change, 0.0)
+        vel = np.where(act.is_cloth[..., None], v[act.cloth_i], vel_ob[act.ob_i])
         vr = np.einsum("ck,ckd->cd", act.w, vel)
         vt = vr - np.sum(vr * act.n, 1, keepdims=True) * act.n
-        wc = np.where(act.is_cloth, act.w, 0.0)
-        inv_m = np.where(act.is_cloth, 1.0 / self.mass[act.cloth_i], 0.0)
-        inv_meff = np.maximum(np.sum(wc**2 * inv_m, 1), 1e-30)
         mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction)
-        weight = np.abs(wc) * fn_end[:, None] + 1e-300  # [C,4] how much each contact matters to a point
-        stop = -((wc * inv_m) / inv_meff[:, None])[..., None] * vt[:, None, :]  # [C,4,3]
-        budget = (mu * dt * fn_end)[:, None] * np.abs(wc) * inv_m  # [C,4] speed budget
-        sel = act.is_cloth
-        verts = act.cloth_i[sel]
-        n = len(v_new)
-        wsum = np.bincount(verts, weights=weight[sel], minlength=n)
-        want = _scatter_rows((stop * weight[..., None])[sel], verts, n) / np.maximum(wsum, 1e-300)[:, None]
-        cap = np.bincount(verts, weights=budget[sel], minlength=n)
-        size = np.linalg.norm(want, axis=1)
-        factor = np.where(size > cap, cap / np.maximum(size, 1e-300), 1.0)
-        v_new += want * factor[:, None]
+        c = mu * act.fn / np.maximum(np.linalg.norm(vt, axis=1), FRICTION_SLIP_SPEED)
+        keep = c > 0
+        if not keep.any():
+            return
+        wc = np.where(act.is_cloth, act.w, 0.0)[keep]
+        sel = act.is_cloth[keep]
+        verts = act.cloth_i[keep][sel]
+        force = -(c[keep, None] * wc)[..., None] * vt[keep][:, None, :]  # [C,4,3]
+        f += _scatter_rows(force[sel], verts, len(f))
+        lump = c[keep, None] * np.abs(wc) * np.abs(wc).sum(1, keepdims=True)
+        n = act.n[keep]
+        tangent = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+        blocks = lump[..., None, None] * tangent[:, None]
+        add_diagonal_blocks(D, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[sel]))
 
     def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
         m = self.model

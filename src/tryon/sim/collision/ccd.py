@@ -117,15 +117,25 @@ def ee_impact(p0, p1, r0, r1, q0, q1, s0, s1, eps, ts):
         dist = norm(diff)
         if dist >= eps:
             continue
+        rel = _weighted(1.0 - a, a, -(1.0 - b), -b, sub(p1, p0), sub(r1, r0), sub(q1, q0), sub(s1, s0))
+        diff0 = _weighted(1.0 - a, a, -(1.0 - b), -b, p0, r0, q0, s0)
+        dist0 = norm(diff0)
         if len_nn > 1e-3 * norm(sub(r, p)) * norm(sub(s, q)):
             n = scale(nn, 1.0 / len_nn)
         elif dist > 1e-300:
             n = scale(diff, 1.0 / dist)  # (nearly) parallel edges: the separation direction
         else:
             continue  # parallel and touching: the vertex-face tests of their ends apply
-        rel = _weighted(1.0 - a, a, -(1.0 - b), -b, sub(p1, p0), sub(r1, r0), sub(q1, q0), sub(s1, s0))
-        gap0 = dot(n, _weighted(1.0 - a, a, -(1.0 - b), -b, p0, r0, q0, s0))
-        n = scale(n, _orient(n, rel, gap0))
+        at_end = a <= 1e-9 or a >= 1.0 - 1e-9 or b <= 1e-9 or b >= 1.0 - 1e-9
+        grazing = abs(dot(n, rel)) < 0.1 * norm(rel) and abs(dot(n, diff0)) < 0.1 * dist0
+        if (at_end or grazing) and dist0 > eps:
+            # a vertex meets an edge, or the edges graze (e.g. cloth falling past a box's
+            # vertical edge onto its corner): the lines' common normal neither opposes the
+            # motion nor separates the start positions, so its sign is a coin toss and
+            # contradicts the neighbouring contacts; the direction the points started
+            # apart in separates them consistently
+            n = scale(diff0, 1.0 / dist0)
+        n = scale(n, _orient(n, rel, dot(n, diff0)))
         return True, t, n, a, b, dot(n, diff)
     return False, 0.0, (0.0, 0.0, 0.0), 0.0, 0.0, 0.0
 

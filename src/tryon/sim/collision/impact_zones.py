@@ -152,10 +152,25 @@ def resolve_collisions(
         report.qp_sweeps += qp.sweeps
         report.ipm_iterations += qp.ipm_iterations
         report.max_violation = qp.violation
+    if report.success and report.iterations and not _plausible_projection(x0, x1, x, masses, ob0, ob1, thickness):
+        report.success = False  # an infeasible or unconverged projection flung vertices away
     report.zones = count_zones(constraints, len(x0))
     report.constraints = constraints
     report.multipliers = lam
     return x, report
+
+
+def _plausible_projection(x0, x1, z, masses, ob0, ob1, thickness) -> bool:
+    """The start positions, carried along by the obstacles' largest displacement, are (up
+    to the target gap) feasible, so the exact projection of x1 lies no farther from x1, in
+    the mass norm, than that; a result far beyond it comes from contradictory constraints
+    (an infeasible or unconverged projection), not from the geometry."""
+    def mass_norm(d):
+        return float(np.sqrt(np.sum(masses[:, None] * d * d)))
+
+    carried = float(np.linalg.norm(ob1 - ob0, axis=1).max()) if len(ob0) else 0.0
+    bound = 2.0 * (mass_norm(x1 - x0) + np.sqrt(masses.sum()) * (carried + thickness))
+    return mass_norm(z - x1) <= bound
 
 
 # --------------------------------------------------------------------------- rigid fail-safe
