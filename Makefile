@@ -4,6 +4,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# Anny's blend-shape cache (about 1.1 GB, built once in about 90 s) and dressed garments
+export ANNY_CACHE_DIR ?= $(CURDIR)/.cache/anny
+export TRYON_CACHE_DIR ?= $(CURDIR)/.cache/tryon
 
 .PHONY: demo test bench clean
 
@@ -15,8 +18,8 @@ $(STAMP): pyproject.toml scripts/system-deps.sh
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/tryon simulate --example sphere-drop --out out/demo
-	@echo "demo outputs: out/demo (frames.npz, obj/, summary.json, last_frame.png)"
+	$(BIN)/tryon drape --height-cm 172 --weight-kg 84 --gender male --garment tshirt --size M --fabric gray-interlock --out out/demo
+	@echo "demo outputs: out/demo (render_front/back/side.png, fit_map.png, pressure_map.png, garment.obj, body.obj, tryon.glb, report.json)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -48,6 +48,47 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _measurements(args: argparse.Namespace):
+    from tryon.body.fit import Measurements
+
+    return Measurements(height_cm=args.height_cm, gender=args.gender, weight_kg=args.weight_kg, bmi=args.bmi, age=args.age,
+                        chest_cm=args.chest_cm, waist_cm=args.waist_cm, hip_cm=args.hip_cm)
+
+
+def _cmd_drape(args: argparse.Namespace) -> int:
+    from tryon.drape import DrapeRequest, drape
+    from tryon.drape.outputs import write_outputs
+
+    size = None if args.size.lower() in ("mtm", "made-to-measure") else args.size
+    req = DrapeRequest(_measurements(args), garment=args.garment, size=size, fabric=args.fabric,
+                       edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time)
+    result = drape(req, progress=not args.quiet)
+    out = Path(args.out)
+    rep = write_outputs(result, out)
+    a, b = rep["body"]["achieved"], rep["body"]["asked"]
+    print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
+          f"{a['weight_kg']:.1f} kg / BMI {a['bmi']:.1f} (chest {a['chest_cm']:.0f}, waist {a['waist_cm']:.0f}, hip {a['hip_cm']:.0f} cm)")
+    print(f"{req.garment} {rep['size']} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
+          f"penetration {rep['penetration_pct']:.2f} % of vertices, {rep['steps']} steps, "
+          f"{'at rest' if rep['settled'] else 'still moving'}; {rep['wall_s']:.1f} s -> {out}")
+    return 0
+
+
+def _cmd_body_range(args: argparse.Namespace) -> int:
+    from tryon.body.range import bmi_range_table
+
+    rows = bmi_range_table(height_cm=args.height_cm)
+    if args.json:
+        from tryon.io.atomic import atomic_write
+
+        with atomic_write(args.json) as fh:
+            json.dump(rows, fh, indent=2)
+    for r in rows:
+        print(f"{r['gender']:7s} BMI asked {r['bmi_asked']:5.1f} achieved {r['bmi_achieved']:5.1f}  distortion {r['mesh_distortion']:.2f}  "
+              f"largest local change {r['largest_local_change']:.2f}  {'ok' if r['supported'] else 'outside the supported range'}")
+    return 0
+
+
 def _cmd_fabrics(args: argparse.Namespace) -> int:
     from tryon.fabric import preset_summaries
 
@@ -83,6 +124,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness")
 
 
+def _body_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--height-cm", type=float, required=True, help="stature in cm")
+    p.add_argument("--weight-kg", type=float, help="body mass in kg (or give --bmi)")
+    p.add_argument("--bmi", type=float, help="body mass index (instead of --weight-kg)")
+    p.add_argument("--gender", choices=["male", "female"], required=True)
+    p.add_argument("--age", type=float, default=30.0, help="years")
+    p.add_argument("--chest-cm", type=float, help="chest / bust girth (optional)")
+    p.add_argument("--waist-cm", type=float, help="waist girth (optional)")
+    p.add_argument("--hip-cm", type=float, help="hip girth (optional)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tryon", description="Simulation-based virtual try-on.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -101,6 +153,23 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dump", action="store_true", help="print the example's YAML and exit")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_simulate)
+
+    d = sub.add_parser("drape", help="a garment of a size and fabric on a body from measurements")
+    _body_args(d)
+    d.add_argument("--garment", default="tshirt", help="tshirt, longsleeve, skirt, trousers or dress")
+    d.add_argument("--size", default="M", help="XS, S, M, L, XL, XXL or made-to-measure")
+    d.add_argument("--fabric", default="gray-interlock", help="fabric preset or .json")
+    d.add_argument("--edge-length", type=float, default=0.012, help="garment triangle edge length in metres")
+    d.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
+    d.add_argument("--settle-time", type=float, default=1.5, help="longest simulated settling time after the morph (s)")
+    d.add_argument("--out", default="out/drape", help="output directory")
+    d.add_argument("--quiet", action="store_true")
+    d.set_defaults(func=_cmd_drape)
+
+    r = sub.add_parser("body-range", help="the BMI range the Anny body reaches without distortion")
+    r.add_argument("--height-cm", type=float, default=172.0)
+    r.add_argument("--json", help="also write the table as JSON")
+    r.set_defaults(func=_cmd_body_range)
 
     f = sub.add_parser("fabrics", help="list fabric presets")
     f.add_argument("--json", action="store_true")

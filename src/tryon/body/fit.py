@@ -52,9 +52,11 @@ class Measurements:
     waist_cm: float | None = None
     hip_cm: float | None = None
 
-    def target_bmi(self) -> float:
+    def target_bmi(self) -> float | None:
         if self.bmi is not None:
             return float(self.bmi)
+        if self.weight_kg is None:
+            return None
         return float(self.weight_kg) / (self.height_cm / 100.0) ** 2
 
     def girths(self) -> dict[str, float]:
@@ -67,14 +69,16 @@ class Measurements:
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value)):
                 raise BodyFitError(f"{name} must be a finite number, got {value!r}")
-        if (self.weight_kg is None) == (self.bmi is None):
-            raise BodyFitError("give exactly one of weight (kg) and BMI")
+        if self.weight_kg is not None and self.bmi is not None:
+            raise BodyFitError("give one of weight (kg) and BMI, not both")
+        if self.weight_kg is None and self.bmi is None and len(self.girths()) < 2:
+            raise BodyFitError("give the weight (kg) or BMI, or at least two of the chest, waist and hip girths")
         _check_range("height", self.height_cm, HEIGHT_RANGE_CM, "cm")
         _check_range("age", self.age, AGE_RANGE, "years")
         if self.weight_kg is not None and self.weight_kg <= 0:
             raise BodyFitError(f"weight must be positive, got {self.weight_kg} kg")
         b = self.target_bmi()
-        if not BMI_RANGE[0] <= b <= BMI_RANGE[1]:
+        if b is not None and not BMI_RANGE[0] <= b <= BMI_RANGE[1]:
             h = self.height_cm / 100.0
             raise BodyFitError(
                 f"BMI {b:.1f} is outside the supported range {BMI_RANGE[0]:.0f}-{BMI_RANGE[1]:.0f} "
@@ -140,7 +144,9 @@ class _Problem:
     def loss(self, z: torch.Tensor) -> torch.Tensor:
         s = self.shape(z)
         v = s.vertices
-        r = [(stature(v) - self.target["height"]) / SCALE["height"], (bmi(v, s.faces) - self.target["bmi"]) / SCALE["bmi"]]
+        r = [(stature(v) - self.target["height"]) / SCALE["height"]]
+        if self.target["bmi"] is not None:
+            r.append((bmi(v, s.faces) - self.target["bmi"]) / SCALE["bmi"])
         for name, value in self.girths.items():
             r.append((girth(s, name, v)[0] - value) / SCALE["girth"])
         _, mu, _, pr = torch.sigmoid(z[:4])
@@ -159,7 +165,8 @@ class _Problem:
                 probes.append((float(stature(s.vertices)), float(bmi(s.vertices, s.faces))))
         (h0, b0), (h1, b1) = probes
         z[2] = _logit(0.15 + 0.7 * (self.target["height"] - h0) / max(h1 - h0, 1e-6))
-        z[0] = _logit(0.15 + 0.7 * (self.target["bmi"] - b0) / max(b1 - b0, 1e-6))
+        if self.target["bmi"] is not None:
+            z[0] = _logit(0.15 + 0.7 * (self.target["bmi"] - b0) / max(b1 - b0, 1e-6))
         return z
 
 
@@ -188,7 +195,9 @@ def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False) -> Bod
                          local={k: float(x) for k, x in zip(LOCAL_CHANGES, lc)})
     shape.params = params
     achieved = measurements(shape)
-    asked = {"height_cm": m.height_cm, "bmi": m.target_bmi()}
+    asked = {"height_cm": m.height_cm}
+    if m.target_bmi() is not None:
+        asked["bmi"] = m.target_bmi()
     if m.weight_kg is not None:
         asked["weight_kg"] = m.weight_kg
     asked.update({f"{k}_cm": v for k, v in m.girths().items()})

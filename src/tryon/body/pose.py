@@ -11,13 +11,17 @@ pose is Anny's rest pose. `a_pose` / `t_pose` straighten the elbows and raise th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
 from tryon.body.anny_model import BodyShape
 from tryon.errors import TryonError
 
-ARM_SIDES = ("L", "R")  # Anny's .L bones lie at +x
+ARM_SIDES = ("L", "R")
+ARM_WORDS = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
+LEG_WORDS = ("upperleg", "lowerleg", "foot", "toe")  # Anny's .L bones lie at +x
 POSES = {"a": 45.0, "t": 90.0, "rest": None}
 
 
@@ -164,3 +168,40 @@ def posed_heads(shape: BodyShape, G: torch.Tensor) -> np.ndarray:
     """Bone heads [J,3] after the bone transforms G (each head moves with its own bone)."""
     h = shape.bone_heads.detach()
     return (torch.einsum("jab,jb->ja", G[:, :3, :3], h) + G[:, :3, 3]).numpy()
+
+
+@dataclass
+class BodyPose:
+    """A posed body for dressing: vertices [V,3], faces, per-vertex part labels, skeleton."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    part: np.ndarray            # 0 torso/head, 1 left arm, 2 right arm, 3 left leg, 4 right leg
+    heads: dict[str, np.ndarray]
+
+
+def body_parts(bone_labels: list[str], weight_index: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Per-vertex body part by dominant skinning weight group (0 torso, 1/2 arm L/R, 3/4 leg L/R)."""
+    groups = np.zeros(len(bone_labels), dtype=np.int64)
+    for j, lab in enumerate(bone_labels):
+        side = 0 if lab.endswith(".L") else 1
+        if any(w in lab for w in ARM_WORDS):
+            groups[j] = 1 + side
+        elif any(w in lab for w in LEG_WORDS):
+            groups[j] = 3 + side
+    score = np.zeros((len(weight), 5))
+    rows = np.repeat(np.arange(len(weight))[:, None], weight.shape[1], 1)
+    np.add.at(score, (rows, groups[weight_index]), weight)
+    return score.argmax(1)
+
+
+def posed_body(shape: BodyShape, pose: str | np.ndarray = "a", crotch_height: float | None = None) -> BodyPose:
+    """The body in a named pose ('a', 't', 'rest') or given rotations, with bone heads
+    (plus a 'crotch' landmark when its height is given) moved along."""
+    R = named_pose(shape, pose) if isinstance(pose, str) else pose
+    G = bone_transforms(shape, R)
+    v = skin(shape.vertices.detach(), shape.weight_index, shape.weight, G).numpy()
+    heads = dict(zip(shape.bone_labels, posed_heads(shape, G)))
+    if crotch_height is not None:
+        heads["crotch"] = np.array([0.0, 0.0, crotch_height])
+    return BodyPose(v, shape.faces, body_parts(shape.bone_labels, shape.weight_index, shape.weight), heads)

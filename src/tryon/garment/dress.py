@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from tryon.body.pose import BodyPose
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.garment.pattern import Panel, Pattern
@@ -37,34 +38,7 @@ from tryon.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 
-ARM_WORDS = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
-LEG_WORDS = ("upperleg", "lowerleg", "foot", "toe")
 DRESS_VERSION = 1
-
-
-@dataclass
-class BodyPose:
-    """A posed body for dressing: vertices [V,3], faces, per-vertex part labels, skeleton."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    part: np.ndarray            # 0 torso/head, 1 left arm, 2 right arm, 3 left leg, 4 right leg
-    heads: dict[str, np.ndarray]
-
-
-def body_parts(bone_labels: list[str], weight_index: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """Per-vertex body part by dominant skinning weight group (0 torso, 1/2 arm L/R, 3/4 leg L/R)."""
-    groups = np.zeros(len(bone_labels), dtype=np.int64)
-    for j, lab in enumerate(bone_labels):
-        side = 0 if lab.endswith(".L") else 1
-        if any(w in lab for w in ARM_WORDS):
-            groups[j] = 1 + side
-        elif any(w in lab for w in LEG_WORDS):
-            groups[j] = 3 + side
-    score = np.zeros((len(weight), 5))
-    rows = np.repeat(np.arange(len(weight))[:, None], weight.shape[1], 1)
-    np.add.at(score, (rows, groups[weight_index]), weight)
-    return score.argmax(1)
 
 
 # --------------------------------------------------------------------------- tubes
@@ -325,8 +299,10 @@ class DressedGarment:
 
 
 def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: float = 0.01, max_steps: int = 300,
-        tolerance: float = 0.001, stiffness: float = 40.0, progress: bool = True) -> tuple[np.ndarray, dict]:
-    """Pull the seams shut in simulation; returns panel-vertex positions [N,3] and stats."""
+        tolerance: float = 0.001, stiffness: float = 40.0, max_stiffness: float = 2000.0, progress: bool = True) -> tuple[np.ndarray, dict]:
+    """Pull the seams shut in simulation; returns panel-vertex positions [N,3] and stats.
+    The stitch stiffness grows 3 % a step (up to `max_stiffness`), so the seams close
+    gently first and then tightly against the cloth's own resistance."""
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.mesh import ClothMesh
     from tryon.sim.model import ClothModel, CollisionSettings
@@ -347,6 +323,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
     while steps < max_steps and gap > tolerance:
         state, _ = solver.step(state, dt)
         steps += 1
+        model.stitch_stiffness = min(max_stiffness, model.stitch_stiffness * 1.03)
         x = state.x.numpy()
         gap = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max())
         bar.update(1)

@@ -1,0 +1,104 @@
+"""Files a drape writes: meshes, a GLB scene, renders, fit maps, the pattern and report.json."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from tryon.io.atomic import atomic_output_dir, atomic_write
+from tryon.io.frames import save_frames_npz
+from tryon.io.mesh_io import write_glb, write_obj
+from tryon.render.colormap import add_colorbar, scalar_to_rgb
+from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
+
+SKIN = (0.80, 0.68, 0.60)
+CLOTH = (0.27, 0.45, 0.72)
+VIEWS = ("front", "back", "side")
+
+
+def face_to_vertex(faces: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Area-agnostic average of per-face values onto vertices."""
+    acc = np.zeros(n)
+    cnt = np.zeros(n)
+    for k in range(3):
+        np.add.at(acc, faces[:, k], values)
+        np.add.at(cnt, faces[:, k], 1)
+    return acc / np.maximum(cnt, 1)
+
+
+def render_views(body_v, body_f, cloth_v, cloth_f, cloth_colors=None, size=(600, 800), views=VIEWS) -> list[np.ndarray]:
+    """Body and garment from each named view, framed on the body."""
+    body = RenderMesh(body_v, body_f, color=SKIN, two_sided=False)
+    cloth = RenderMesh(cloth_v, cloth_f, color=CLOTH, vertex_colors=cloth_colors)
+    out = []
+    for view in views:
+        cam = Camera.fit([body_v, cloth_v], view, aspect=size[0] / size[1], margin=1.05)
+        out.append(render_meshes([body, cloth], size[0], size[1], camera=cam))
+    return out
+
+
+def fit_map_image(body_v, body_f, cloth_v, cloth_f, face_values, vmax: float, label: str, cmap: str = "turbo") -> np.ndarray:
+    """Front and back views of the garment coloured by a per-face quantity, with a legend."""
+    colors = scalar_to_rgb(face_to_vertex(cloth_f, face_values, len(cloth_v)), 0.0, vmax, cmap=cmap)
+    imgs = render_views(body_v, body_f, cloth_v, cloth_f, colors, size=(500, 700), views=("front", "back"))
+    return add_colorbar(np.concatenate(imgs, axis=1), 0.0, vmax, cmap=cmap, label=label, fmt="{:.0f}" if vmax >= 10 else "{:.1f}")
+
+
+def pressure_face_values(faces: np.ndarray, pressure_vertex: np.ndarray) -> np.ndarray:
+    return pressure_vertex[faces].mean(1)
+
+
+def report_dict(result) -> dict:
+    req = result.request
+    g = result.garment
+    return {
+        "garment": req.garment,
+        "size": req.size or "made-to-measure",
+        "fabric": req.fabric,
+        "body": result.person.report(),
+        "fit_model": result.fit_model.report() if result.fit_model is not None else None,
+        "pattern": {"panels": [p.name for p in g.pattern.panels], "seams": len(g.pattern.seams),
+                    "area_m2": g.pattern.area(), "edge_length_m": req.edge_length},
+        "mesh": {"garment_vertices": int(len(g.vertices)), "garment_faces": int(len(g.faces)), "body_vertices": int(len(result.body_vertices))},
+        "dressing": g.stats,
+        **{k: v for k, v in result.metrics.items()},
+        "penetration_pct": result.metrics["penetration_pct"],
+        "max_strain": result.metrics["max_strain"],
+        "wall_s": result.timings["wall_s"],
+        "timings": result.timings,
+        "settings": {"dt": req.dt, "morph_time": req.morph_time, "max_settle_time": req.max_settle_time,
+                     "rest_speed": req.rest_speed, "thickness": req.thickness, "friction": req.friction},
+    }
+
+
+def write_outputs(result, out: str | Path) -> dict:
+    """Write everything into `out` (built under a temporary name, renamed when complete)."""
+    from tryon.drape.pipeline import STATE_FILE, save_state
+    from tryon.garment.pattern import plot_pattern
+
+    out = Path(out)
+    g = result.garment
+    bv, bf = result.body_vertices, result.body_faces
+    report = report_dict(result)
+    with atomic_output_dir(out) as tmp:
+        write_obj(tmp / "garment.obj", result.x, g.faces, uv=g.uv)
+        write_obj(tmp / "body.obj", bv, bf)
+        write_glb(tmp / "tryon.glb", [(bv, bf, SKIN, "body"), (result.x, g.faces, CLOTH, "garment")])
+        for view, img in zip(VIEWS, render_views(bv, bf, result.x, g.faces)):
+            save_png(tmp / f"render_{view}.png", img)
+        save_png(tmp / "fit_map.png", fit_map_image(bv, bf, result.x, g.faces, 100.0 * result.strain,
+                                                    vmax=max(10.0, float(np.percentile(100 * result.strain, 99))), label="strain %"))
+        kpa = pressure_face_values(g.faces, result.pressure) / 1000.0
+        save_png(tmp / "pressure_map.png", fit_map_image(bv, bf, result.x, g.faces, kpa,
+                                                         vmax=max(0.5, float(np.percentile(kpa, 99))), label="contact kPa"))
+        g.pattern.save(tmp / "pattern.json")
+        g.pattern.to_svg(tmp / "pattern.svg")
+        plot_pattern(g.pattern, tmp / "pattern.png")
+        save_frames_npz(tmp / "frames.npz", np.stack(result.frames), g.faces, uv=g.uv, times=np.asarray(result.frame_times),
+                        body_vertices=bv, body_faces=bf, face_strain=result.strain, vertex_pressure=result.pressure)
+        save_state(result, tmp / STATE_FILE)
+        with atomic_write(tmp / "report.json") as fh:
+            json.dump(report, fh, indent=2, default=float)
+    return report

@@ -1,0 +1,240 @@
+"""`tryon drape`: a garment of a given size and fabric on a body from measurements.
+
+1. Fit Anny to the person's measurements (tryon.body.fit).
+2. The size's fit model: Anny fitted to the size chart's girths and stature (or, made to
+   measure, the person); the pattern is drafted on the fit model's measurements.
+3. Dress the pattern on the fit model in the A-pose (sewn in simulation; cached).
+4. Simulate: the body morphs from the fit model to the person over `morph_time`
+   (a key-framed collision obstacle); cloth near the skin is carried along with the
+   body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
+   the run continues until the cloth is at rest (static equilibrium: the fastest vertex
+   below `rest_speed`) or `max_settle_time` passes.
+5. Measure and write: meshes, GLB, renders, fit maps, report.json.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from tryon.body.fit import BodyFit, Measurements, fit_body
+from tryon.body.measure import drafting_measurements
+from tryon.body.pose import BodyPose, posed_body
+from tryon.errors import TryonError
+from tryon.fabric import load_fabric
+from tryon.garment.drafts import GARMENTS, draft
+from tryon.garment.dress import DressedGarment, dress_cached
+from tryon.garment.sizes import SIZES, size_measurements
+
+STATE_FILE = "drape_state.npz"
+
+
+@dataclass
+class DrapeRequest:
+    body: Measurements
+    garment: str = "tshirt"
+    size: str | None = "M"       # None: made to measure on the person's own body
+    fabric: str = "gray-interlock"
+    edge_length: float = 0.012   # m
+    dt: float = 0.01             # s
+    morph_time: float = 0.4      # s
+    max_settle_time: float = 1.5  # s
+    rest_speed: float = 0.02     # m/s
+    thickness: float = 0.004     # m, contact distance kept from the skin
+    friction: float = 0.4        # skin-cloth Coulomb coefficient once the body has its shape
+    morph_friction: float = 0.0  # while the body morphs the cloth slides (as when putting it on)
+
+    def validate(self) -> None:
+        if self.garment not in GARMENTS:
+            raise TryonError(f"unknown garment {self.garment!r}; available: {', '.join(GARMENTS)}")
+        if self.size is not None and self.size.upper() not in SIZES:
+            raise TryonError(f"unknown size {self.size!r}; standard sizes: {', '.join(SIZES)} (or made-to-measure)")
+        if not 0.004 <= self.edge_length <= 0.05:
+            raise TryonError(f"edge length {self.edge_length} m is outside 0.004-0.05 m")
+        if not 0.001 <= self.dt <= 1 / 30:
+            raise TryonError(f"time step {self.dt} s is outside 0.001-0.033 s")
+        load_fabric(self.fabric)  # raises FabricError naming the presets
+        self.body.validate()
+
+
+@dataclass
+class DrapeResult:
+    request: DrapeRequest
+    person: BodyFit
+    fit_model: BodyFit | None
+    garment: DressedGarment
+    body_vertices: np.ndarray        # the person in the A-pose
+    body_faces: np.ndarray
+    x: np.ndarray                    # draped garment vertices
+    frames: list[np.ndarray] = field(default_factory=list)
+    frame_times: list[float] = field(default_factory=list)
+    metrics: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def fit_model_measurements(request: DrapeRequest) -> Measurements | None:
+    """The fit model of a standard size: the size chart's girths at its stature."""
+    if request.size is None:
+        return None
+    s = size_measurements(request.size, request.body.gender)
+    return Measurements(height_cm=s["height_cm"], gender=request.body.gender, chest_cm=s["chest_cm"],
+                        waist_cm=s["waist_cm"], hip_cm=s["hip_cm"], age=request.body.age)
+
+
+def smoothstep_keyframes(a: np.ndarray, b: np.ndarray, duration: float, count: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """Key frames [count, V, 3] from a to b with smoothstep timing (no jerk at the ends)."""
+    s = np.linspace(0.0, 1.0, count)
+    w = s * s * (3 - 2 * s)
+    return np.stack([(1 - wi) * a + wi * b for wi in w]), s * duration
+
+
+class SkinBinding:
+    """Each garment vertex bound to its nearest point on the body (face + barycentrics),
+    with a weight that fades from 1 within `near` of the skin to 0 beyond `far`; `motion`
+    gives the body's displacement at those points, so cloth near the skin can be carried
+    along with a changing body while loose cloth is left to physics."""
+
+    def __init__(self, x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, near: float = 0.02, far: float = 0.08):
+        from tryon.sim.collision.intersections import _nearest
+
+        dist, self.face, self.bary = _nearest(np.ascontiguousarray(x), body_vertices, body_faces)
+        self.corners = body_faces[self.face]
+        self.weight = np.clip((far - dist) / (far - near), 0.0, 1.0)
+
+    def points(self, body_vertices: np.ndarray) -> np.ndarray:
+        return np.einsum("nk,nkd->nd", self.bary, body_vertices[self.corners])
+
+    def motion(self, body_from: np.ndarray, body_to: np.ndarray) -> np.ndarray:
+        return self.weight[:, None] * (self.points(body_to) - self.points(body_from))
+
+
+def keep_outside(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, gap: float) -> np.ndarray:
+    """Points closer to the skin than `gap` (or inside) moved out along the skin normal."""
+    from tryon.sim.collision import nearest_surface_points
+
+    d, q, n = nearest_surface_points(x, body_vertices, body_faces)
+    bad = d < gap
+    if bad.any():
+        x = x.copy()
+        x[bad] = q[bad] + gap * n[bad]
+    return x
+
+
+def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
+                   progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
+    """Morph the body from `start` to `target` under the dressed garment, then settle."""
+    from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.model import ClothModel, CollisionSettings
+    from tryon.sim.obstacles import Motion, Obstacle
+
+    fabric = load_fabric(request.fabric)
+    frames, times = smoothstep_keyframes(start.vertices, target.vertices, request.morph_time)
+    body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
+    model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body],
+                       collision=CollisionSettings(thickness=request.thickness, friction=request.morph_friction, self_friction=0.3))
+    solver = ImplicitEulerSolver(model)
+    state = model.initial_state()
+    binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
+    t_end = request.morph_time + request.max_settle_time
+    out_frames, out_times = [state.x.numpy().copy()], [0.0]
+    stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
+    n_steps = int(np.ceil(t_end / request.dt))
+    bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
+    settled = False
+    while state.t < t_end - 1e-9:
+        if state.t >= request.morph_time:
+            model.collision.friction = request.friction
+        else:  # the cloth near the skin is carried with the changing body, physics does the rest
+            now = model.obstacles.vertices_at(state.t)
+            carried = state.x.numpy() + binding.motion(model.obstacles.vertices_at(state.t - request.dt), now)
+            carried = keep_outside(carried, now, start.faces, request.thickness)
+            state = type(state)(torch.from_numpy(carried), state.v, state.t)
+        state, st = solver.step(state, request.dt)
+        stats["steps"] += 1
+        stats["substeps"] += st.substeps
+        stats["retried_steps"] += int(st.retried)
+        for k, v in st.seconds.items():
+            stats["seconds"][k] += v
+        bar.update(1)
+        if stats["steps"] % 4 == 0:
+            out_frames.append(state.x.numpy().copy())
+            out_times.append(state.t)
+        speed = float(np.linalg.norm(state.v.numpy(), axis=1).max())
+        bar.set_postfix(speed=f"{speed:.3f}")
+        if state.t >= request.morph_time and speed < request.rest_speed:
+            settled = True
+            break
+    bar.close()
+    if out_times[-1] != state.t:
+        out_frames.append(state.x.numpy().copy())
+        out_times.append(state.t)
+    stats.update({"simulated_s": state.t, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max())})
+    return state.x.numpy(), out_frames, out_times, stats, solver
+
+
+def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
+    """Run the whole try-on; see the module docstring. Outputs are written by `write_outputs`."""
+    request.validate()
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    person = fit_body(request.body)
+    timings["fit_body_s"] = time.perf_counter() - t0
+    fm_meas = fit_model_measurements(request)
+    t1 = time.perf_counter()
+    fit_model = fit_body(fm_meas) if fm_meas is not None else None
+    timings["fit_model_s"] = time.perf_counter() - t1
+    model_shape = (fit_model or person).shape
+    m = drafting_measurements(model_shape)
+    pattern = draft(request.garment, m, size=request.size.upper() if request.size else "made-to-measure",
+                    meta={"gender": request.body.gender})
+    start = posed_body(model_shape, "a", m["crotch_height"])
+    pm = drafting_measurements(person.shape)
+    target = posed_body(person.shape, "a", pm["crotch_height"])
+    t2 = time.perf_counter()
+    garment = dress_cached(pattern, start, load_fabric(request.fabric), request.edge_length, progress=progress)
+    timings["dress_s"] = time.perf_counter() - t2
+    t3 = time.perf_counter()
+    x, frames, times, stats, solver = simulate_drape(request, garment, start, target, progress=progress)
+    timings["simulate_s"] = time.perf_counter() - t3
+    result = DrapeResult(request, person, fit_model, garment, target.vertices, target.faces, x, frames, times, timings=timings)
+    t4 = time.perf_counter()
+    from tryon.drape.fit_metrics import drape_metrics
+
+    result.metrics = drape_metrics(result, solver)
+    result.metrics.update(stats)
+    timings["metrics_s"] = time.perf_counter() - t4
+    timings["wall_s"] = time.perf_counter() - t0
+    return result
+
+
+def save_state(result: DrapeResult, path: Path) -> None:
+    """What `tryon animate` needs to continue from a drape."""
+    from tryon.io.atomic import atomic_write
+
+    g = result.garment
+    req = asdict(result.request)
+    with atomic_write(path, "wb") as fh:
+        np.savez_compressed(fh, x=result.x, faces=g.faces, uv=g.uv, corner_uv=g.corner_uv, face_panel=g.face_panel,
+                            body_vertices=result.body_vertices, body_faces=result.body_faces,
+                            body_params=json.dumps(result.person.params.to_dict()), request=json.dumps(req),
+                            pattern=json.dumps(g.pattern.to_dict()))
+
+
+def load_state(path: Path) -> dict:
+    if not path.exists():
+        raise TryonError(f"{path.parent} holds no drape ({path.name} missing); run `tryon drape ... --out {path.parent}` first")
+    d = np.load(path, allow_pickle=False)
+    out = {k: d[k] for k in d.files}
+    for k in ("body_params", "request", "pattern"):
+        out[k] = json.loads(str(out[k]))
+    return out
+
+
+def torch_x(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(x))
