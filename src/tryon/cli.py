@@ -74,6 +74,16 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_animate(args: argparse.Namespace) -> int:
+    from tryon.drape.animate import animate
+
+    rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume)
+    print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
+          f"{rep['max_strain'] * 100:.1f} %, penetration up to {rep['max_penetration_pct']:.2f} % of vertices, "
+          f"intersections {rep['intersections']}")
+    return 0
+
+
 def _cmd_body_range(args: argparse.Namespace) -> int:
     from tryon.body.range import bmi_range_table
 
@@ -165,6 +175,15 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out/drape", help="output directory")
     d.add_argument("--quiet", action="store_true")
     d.set_defaults(func=_cmd_drape)
+
+    a = sub.add_parser("animate", help="the garment of a drape following a body motion")
+    a.add_argument("drape_dir", help="output directory of `tryon drape`")
+    a.add_argument("--motion", default="walk", help="walk, arm-raise, turn, or a motion .npz / .bvh file")
+    a.add_argument("--out", help="output directory (default DRAPE_DIR/animation-MOTION)")
+    a.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
+    a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
+    a.add_argument("--quiet", action="store_true")
+    a.set_defaults(func=_cmd_animate)
 
     r = sub.add_parser("body-range", help="the BMI range the Anny body reaches without distortion")
     r.add_argument("--height-cm", type=float, default=172.0)

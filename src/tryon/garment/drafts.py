@@ -136,7 +136,7 @@ def bodice_half(d: BodiceDims, front: bool, sleeveless: bool = False) -> list[Ed
 
 
 def _bodice_panels(d: BodiceDims, top_height: float, sleeveless: bool = False) -> list[Panel]:
-    place = {"part": "torso", "top_z": top_height}
+    place = {"part": "torso", "top_z": top_height, "over_shoulder": 0.05}
     front = symmetric_panel("front", bodice_half(d, True, sleeveless), dict(place, side="front"))
     back = symmetric_panel("back", bodice_half(d, False, sleeveless), dict(place, side="back"))
     return [front, back]

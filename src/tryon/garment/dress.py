@@ -38,7 +38,7 @@ from tryon.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 
-DRESS_VERSION = 1
+DRESS_VERSION = 2
 
 
 # --------------------------------------------------------------------------- tubes
@@ -144,15 +144,17 @@ def _panel_half_width(panel: Panel) -> float:
     return max(abs(lo[0]), abs(hi[0]))
 
 
-def place_torso(points: np.ndarray, panel: Panel, tube: TorsoTube, over_shoulder: float = 0.05) -> np.ndarray:
-    """Front/back panel onto the torso tube. The panel's top `over_shoulder` metres bend
-    over the shoulders (the depth shrinks to the mid-plane), so front and back meet there."""
+def place_torso(points: np.ndarray, panel: Panel, tube: TorsoTube) -> np.ndarray:
+    """Front/back panel onto the torso tube. A bodice's top `over_shoulder` metres (its
+    placement key) bend over the shoulders (the depth shrinks to the mid-plane), so front
+    and back meet there; a skirt's waist stays on the tube."""
     _, hi = panel.bounds()
     top = float(panel.placement.get("top_z", 0.0))
+    over_shoulder = float(panel.placement.get("over_shoulder", 0.0))
     s = hi[1] - points[:, 1]  # distance below the panel top, along the panel
     z_flat = top - over_shoulder
     z = np.where(s > over_shoulder, top - s, z_flat)
-    lift = np.clip(over_shoulder - s, 0.0, over_shoulder) / over_shoulder  # 1 at the top, 0 below the bend
+    lift = np.clip(over_shoulder - s, 0.0, over_shoulder) / max(over_shoulder, 1e-12)  # 1 at the top, 0 below the bend
     z = z + 0.6 * over_shoulder * np.sin(0.5 * np.pi * lift)
     zq = np.minimum(z, z_flat)
     front = panel.placement.get("side", "front") == "front"

@@ -1,0 +1,180 @@
+"""Body motions: per-frame joint rotations, their files, and bodies moving through them.
+
+A `BodyMotion` holds, for T frames at `fps`, one rotation per named bone (axis-angle,
+in the pose convention of `tryon.body.pose`: about the bone's head, in the world frame of
+Anny's rest pose, applied parent first) and a root translation. Bones a motion does not
+name stay at their rest rotation, so one file fits every Anny body.
+
+File format (npz): `rotations` [T,J,3] axis-angle (radians), `bone_labels` [J] (str),
+`fps` (scalar), optional `root_translation` [T,3] (m), optional `name`. BVH files load
+through `tryon.body.bvh`. Built-in motions (`walk`, `arm-raise`, `turn`) ship in
+tryon/body/data/motions, authored by scripts/author_motions.py.
+
+`motion_keyframes` poses a body through a motion (linear blend skinning), starting from a
+given pose (the A-pose a garment was draped in) and blending into the motion with
+spherical interpolation; `morph_keyframes` changes one body shape into another over time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from tryon.body.anny_model import BodyShape
+from tryon.body.pose import axis_angle, bone_transforms, identity_pose, matrix_to_axis_angle, skin
+from tryon.errors import InputFileError, TryonError
+from tryon.io.atomic import atomic_write
+
+BUILTIN_MOTIONS = ("walk", "arm-raise", "turn")
+
+
+@dataclass
+class BodyMotion:
+    """Per-frame bone rotations [T,J,3] (axis-angle) for `bone_labels`, at `fps`."""
+
+    rotations: np.ndarray
+    bone_labels: list[str]
+    fps: float
+    root_translation: np.ndarray | None = None
+    name: str = "motion"
+
+    def __post_init__(self) -> None:
+        r = np.asarray(self.rotations, dtype=np.float64)
+        if r.ndim != 3 or r.shape[2] != 3 or r.shape[0] < 1 or r.shape[1] != len(self.bone_labels):
+            raise TryonError(f"motion {self.name}: rotations must be [T, J, 3] with J = {len(self.bone_labels)} bone labels, got {r.shape}")
+        if not np.isfinite(r).all():
+            raise TryonError(f"motion {self.name}: rotations contain NaN or inf")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise TryonError(f"motion {self.name}: fps must be positive, got {self.fps}")
+        self.rotations = r
+        if self.root_translation is None:
+            self.root_translation = np.zeros((len(r), 3))
+        t = np.asarray(self.root_translation, dtype=np.float64)
+        if t.shape != (len(r), 3) or not np.isfinite(t).all():
+            raise TryonError(f"motion {self.name}: root_translation must be finite [T, 3] = [{len(r)}, 3], got {t.shape}")
+        self.root_translation = t
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.rotations)
+
+    @property
+    def duration(self) -> float:
+        return (self.num_frames - 1) / self.fps
+
+    def pose_matrices(self, shape: BodyShape) -> np.ndarray:
+        """Rotations [T,J_body,3,3] for the bones of `shape` (unnamed bones: identity)."""
+        R = np.tile(identity_pose(shape)[None], (self.num_frames, 1, 1, 1))
+        index = {lab: i for i, lab in enumerate(shape.bone_labels)}
+        unknown = [lab for lab in self.bone_labels if lab not in index]
+        if len(unknown) == len(self.bone_labels):
+            raise TryonError(f"motion {self.name}: none of its bones exist in the body (e.g. {unknown[:3]})")
+        cols = [j for j, lab in enumerate(self.bone_labels) if lab in index]
+        R[:, [index[self.bone_labels[j]] for j in cols]] = axis_angle(self.rotations[:, cols])
+        return R
+
+    def save(self, path: str | Path) -> Path:
+        with atomic_write(path, "wb") as fh:
+            np.savez_compressed(fh, rotations=self.rotations, bone_labels=np.array(self.bone_labels), fps=self.fps,
+                                root_translation=self.root_translation, name=self.name)
+        return Path(path)
+
+
+def load_motion(source: str | Path, shape: BodyShape | None = None) -> BodyMotion:
+    """A built-in motion by name, or a motion file (.npz, or .bvh retargeted onto `shape`)."""
+    text = str(source)
+    if text in BUILTIN_MOTIONS:
+        ref = resources.files("tryon.body").joinpath(f"data/motions/{text}.npz")
+        with resources.as_file(ref) as p:
+            return _load_npz(Path(p))
+    path = Path(text)
+    if not path.exists():
+        raise InputFileError(f"motion {text!r}: no such file, and not a built-in motion ({', '.join(BUILTIN_MOTIONS)})")
+    if path.suffix.lower() == ".bvh":
+        from tryon.body.bvh import load_bvh, retarget
+
+        if shape is None:
+            raise TryonError(f"motion {path}: a BVH file needs the body it is retargeted onto")
+        return retarget(load_bvh(path), shape)
+    if path.suffix.lower() != ".npz":
+        raise InputFileError(f"motion {path}: use a .npz (rotations, bone_labels, fps) or a .bvh file")
+    return _load_npz(path)
+
+
+def _load_npz(path: Path) -> BodyMotion:
+    try:
+        d = np.load(path, allow_pickle=False)
+        rot, labels, fps = d["rotations"], [str(x) for x in d["bone_labels"]], float(d["fps"])
+        trans = d["root_translation"] if "root_translation" in d.files else None
+        name = str(d["name"]) if "name" in d.files else path.stem
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputFileError(f"motion file {path}: unreadable or missing keys rotations / bone_labels / fps ({exc})") from exc
+    return BodyMotion(rot, labels, fps, trans, name)
+
+
+def slerp_poses(Ra: np.ndarray, Rb: np.ndarray, s: float) -> np.ndarray:
+    """Per-bone spherical interpolation between pose rotations [J,3,3] (s in [0, 1])."""
+    delta = matrix_to_axis_angle(np.einsum("jba,jbc->jac", Ra, Rb))  # Ra^T Rb
+    return np.einsum("jab,jbc->jac", Ra, axis_angle(s * delta))
+
+
+def smoothstep(s: np.ndarray | float) -> np.ndarray | float:
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * (3 - 2 * s)
+
+
+def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = 0.5,
+                     fps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Skinned body vertices [K,V,3] and their times [K]: `blend_time` seconds from
+    `start_pose` [J,3,3] into the motion's first frame (smoothstep slerp), then the motion."""
+    fps = fps or motion.fps
+    poses = motion.pose_matrices(shape)
+    n_blend = max(1, int(round(blend_time * fps)))
+    frames, times = [], []
+    verts = shape.vertices.detach()
+    for k in range(n_blend):
+        R = slerp_poses(start_pose, poses[0], float(smoothstep(k / n_blend)))
+        frames.append(skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy())
+        times.append(k / fps)
+    t_motion = np.arange(0.0, motion.duration + 1e-9, 1.0 / fps)
+    for t in t_motion:
+        R, trans = _sample(motion, poses, t)
+        frames.append(skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R, trans)).numpy())
+        times.append(n_blend / fps + t)
+    return np.stack(frames), np.asarray(times)
+
+
+def _sample(motion: BodyMotion, poses: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pose [J,3,3] and root translation at time t (slerp between the nearest frames)."""
+    u = min(max(t * motion.fps, 0.0), motion.num_frames - 1.0)
+    k = min(int(np.floor(u)), motion.num_frames - 2) if motion.num_frames > 1 else 0
+    s = u - k if motion.num_frames > 1 else 0.0
+    if motion.num_frames == 1:
+        return poses[0], motion.root_translation[0]
+    R = slerp_poses(poses[k], poses[k + 1], s)
+    trans = (1 - s) * motion.root_translation[k] + s * motion.root_translation[k + 1]
+    return R, trans
+
+
+def morph_keyframes(a: np.ndarray, b: np.ndarray, duration: float, count: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """A body changing shape: vertices [count,V,3] from `a` to `b` (same mesh and pose) with
+    smoothstep timing (no jerk at the ends), and their times [count] over `duration`."""
+    if a.shape != b.shape:
+        raise TryonError(f"morph: both bodies need the same vertices, got {a.shape} and {b.shape}")
+    s = np.linspace(0.0, 1.0, count)
+    w = smoothstep(s)
+    return np.stack([(1 - wi) * a + wi * b for wi in w]), s * duration
+
+
+def posed_sequence(shape: BodyShape, rotations: np.ndarray, translations: np.ndarray | None = None) -> np.ndarray:
+    """Skinned vertices [T,V,3] for poses [T,J,3,3] (and root translations [T,3])."""
+    verts = shape.vertices.detach()
+    out = []
+    for k in range(len(rotations)):
+        trans = None if translations is None else translations[k]
+        out.append(skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, rotations[k], trans)).numpy())
+    return np.stack(out)
+

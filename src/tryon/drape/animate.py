@@ -1,0 +1,146 @@
+"""`tryon animate DIR --motion walk`: a draped garment follows its body through a motion.
+
+The drape in DIR (written by `tryon drape`) holds the garment at rest on the person in
+the A-pose and the person's Anny parameters. The body blends from the A-pose into the
+motion (`tryon.body.motion.motion_keyframes`) and plays it as a key-framed collision
+obstacle; the garment is simulated through it (contact, friction, gravity). Outputs in
+the animation directory: frames.npz (garment and body per frame), preview.gif,
+metrics.json (per frame: strain, penetration, intersections), report.json and
+last_frame.png.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from tryon.body.anny_model import ShapeParams, body_model
+from tryon.body.motion import load_motion, motion_keyframes
+from tryon.body.pose import named_pose
+from tryon.errors import TryonError
+from tryon.fabric import load_fabric
+from tryon.sim.integrator import StepOptions
+from tryon.sim.scene import Scene
+
+FRAME_TIME = 1.0 / 30.0
+
+
+def load_drape(drape_dir: str | Path) -> dict:
+    from tryon.drape.pipeline import STATE_FILE, load_state
+
+    return load_state(Path(drape_dir) / STATE_FILE)
+
+
+def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.01, duration: float | None = None,
+                    blend_time: float = 0.5) -> Scene:
+    """The draped garment of `drape_dir` as cloth and its body moving through `motion`
+    (a built-in name, .npz or .bvh) as a key-framed obstacle, ready to simulate."""
+    from tryon.sim.mesh import ClothMesh
+    from tryon.sim.model import ClothModel, CollisionSettings
+    from tryon.sim.obstacles import Motion, Obstacle
+
+    if not 0.001 <= dt <= 1 / 30:
+        raise TryonError(f"time step {dt} s is outside 0.001-0.033 s")
+    state = load_drape(drape_dir)
+    request = state["request"]
+    shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"]))
+    start_pose = named_pose(shape, "a")
+    body_motion = load_motion(motion, shape)
+    frames, times = motion_keyframes(shape, body_motion, start_pose, blend_time=blend_time)
+    if np.abs(frames[0] - state["body_vertices"]).max() > 1e-3:
+        raise TryonError(f"{drape_dir}: the stored body does not match its parameters (drape made with another body "
+                         f"model version?); run `tryon drape` again")
+    body = Obstacle("body", frames[0], state["body_faces"], Motion(keyframes=frames, keyframe_times=times))
+    cloth = ClothMesh(torch.from_numpy(state["x"]), torch.from_numpy(state["uv"]), torch.from_numpy(state["faces"]),
+                      name=state["pattern"].get("name", "garment"), face_uv=torch.from_numpy(state["corner_uv"]))
+    fabric = load_fabric(request["fabric"])
+    model = ClothModel(cloth, fabric, obstacles=[body],
+                       collision=CollisionSettings(thickness=request["thickness"], friction=request["friction"], self_friction=0.3))
+    total = float(times[-1]) if duration is None else float(duration)
+    if total <= 0:
+        raise TryonError(f"animation duration must be positive, got {total}")
+    spec = {"animation": {"drape": str(Path(drape_dir).resolve()), "motion": str(motion), "dt": dt, "duration": total,
+                          "blend_time": blend_time, "motion_frames": int(body_motion.num_frames)}}
+    return Scene(name=f"animate-{body_motion.name}", model=model, dt=dt, duration=total, frame_time=FRAME_TIME,
+                 options=StepOptions(), description=f"{cloth.name} on a body doing '{body_motion.name}'", spec=spec)
+
+
+def frame_metrics(scene: Scene, positions: np.ndarray, times: np.ndarray, base: list[dict]) -> list[dict]:
+    """Per frame: the simulator's metrics plus penetration of the garment into the body."""
+    from tryon.drape.fit_metrics import penetration
+
+    model = scene.model
+    out = []
+    for x, t, m in zip(positions, times, base):
+        pen = penetration(x, model.obstacles.vertices_at(float(t)), model.obstacles.faces)
+        out.append({"time": float(t), **m, "penetration_pct": pen["penetration_pct"],
+                    "deepest_penetration_mm": pen["deepest_penetration_mm"]})
+    return out
+
+
+def render_preview(scene: Scene, positions: np.ndarray, times: np.ndarray, size=(360, 480), progress: bool = True) -> list[np.ndarray]:
+    """Front three-quarter renders of body and garment, one per frame, framed once."""
+    from tryon.drape.outputs import CLOTH, SKIN
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes
+
+    model = scene.model
+    faces = model.faces.numpy()
+    bodies = [model.obstacles.vertices_at(float(t)) for t in times]
+    cam = Camera.fit([np.concatenate([bodies[0], bodies[-1], positions[0]])], "three_quarter", aspect=size[0] / size[1], margin=1.15)
+    images = []
+    for x, b in tqdm(list(zip(positions, bodies)), desc="rendering", unit="frame", disable=not progress, leave=False):
+        meshes = [RenderMesh(b, model.obstacles.faces, color=SKIN, two_sided=False), RenderMesh(x, faces, color=CLOTH)]
+        images.append(render_meshes(meshes, size[0], size[1], camera=cam))
+    return images
+
+
+def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None = None, dt: float = 0.01,
+            progress: bool = True, resume: bool = False, run=None) -> dict:
+    """Simulate the drape in `drape_dir` through `motion` and write the outputs (see the
+    module docstring) into `out` (default DIR/animation-<motion>). `run(scene, work_dir,
+    progress, resume)` may replace the serial simulation (e.g. a time-parallel run); it
+    returns a `tryon.sim.runner.RunResult`."""
+    from tryon.io.atomic import atomic_output_dir, atomic_write
+    from tryon.io.frames import save_frames_npz
+    from tryon.render.animation import write_gif
+    from tryon.sim.runner import render_state_png, simulate
+
+    t0 = time.perf_counter()
+    scene = animation_scene(drape_dir, motion, dt=dt)
+    out = Path(out) if out is not None else Path(drape_dir) / f"animation-{Path(str(motion)).stem}"
+    work = out.with_name(out.name + ".checkpoint")
+    work.mkdir(parents=True, exist_ok=True)
+    if run is None:
+        result = simulate(scene, progress=progress, checkpoint_dir=work, resume=resume)
+    else:
+        result = run(scene, work, progress, resume)
+    metrics = frame_metrics(scene, result.positions, result.times, result.frame_metrics)
+    bodies = np.stack([scene.model.obstacles.vertices_at(float(t)) for t in result.times])
+    images = render_preview(scene, result.positions, result.times, progress=progress)
+    report = {
+        "drape": str(drape_dir), "motion": scene.spec["animation"]["motion"], "frames": len(metrics),
+        **result.summary,
+        "max_penetration_pct": max(m["penetration_pct"] for m in metrics),
+        "mean_penetration_pct": float(np.mean([m["penetration_pct"] for m in metrics])),
+        "max_strain": max(m["max_strain"] for m in metrics),
+        "wall_s": time.perf_counter() - t0,
+    }
+    m = scene.model
+    with atomic_output_dir(out) as tmp:
+        save_frames_npz(tmp / "frames.npz", result.positions, m.faces.numpy(), uv=m.mesh.uv.numpy(), times=result.times,
+                        body_vertices=bodies, body_faces=m.obstacles.faces)
+        write_gif(tmp / "preview.gif", images, fps=1.0 / FRAME_TIME)
+        render_state_png(scene, result.positions[-1], float(result.times[-1]), tmp / "last_frame.png")
+        with atomic_write(tmp / "metrics.json") as fh:
+            json.dump(metrics, fh, indent=1)
+        with atomic_write(tmp / "report.json") as fh:
+            json.dump(report, fh, indent=2, default=float)
+    for p in work.glob("*"):
+        p.unlink()
+    work.rmdir()
+    return report
