@@ -38,7 +38,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.linear_solver:
         scene.options.linear_solver = args.linear_solver
     out = Path(args.out or f"out/{scene.name}")
-    result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj)
+    if args.parallel == "time":
+        from tryon.parallel import run_scene_time_parallel
+
+        result = run_scene_time_parallel(scene, out, workers=args.workers, partition=args.partition,
+                                         ray_address=args.ray_address, progress=not args.quiet, resume=args.resume,
+                                         write_objs=not args.no_obj)
+    else:
+        result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj)
     s = result.summary
     print(
         f"{scene.name}: {s['steps']} steps in {s['wall_s']:.1f} s ({s['s_per_step'] * 1000:.1f} ms/step), "
@@ -68,7 +75,7 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     a, b = rep["body"]["achieved"], rep["body"]["asked"]
     print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
           f"{a['weight_kg']:.1f} kg / BMI {a['bmi']:.1f} (chest {a['chest_cm']:.0f}, waist {a['waist_cm']:.0f}, hip {a['hip_cm']:.0f} cm)")
-    print(f"{req.garment} {rep['size']} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
+    print(f"{req.garment} {rep['size'] or ''} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
           f"penetration {rep['penetration_pct']:.2f} % of vertices, {rep['steps']} steps, "
           f"{'at rest' if rep['settled'] else 'still moving'}; {rep['wall_s']:.1f} s -> {out}")
     return 0
@@ -77,10 +84,47 @@ def _cmd_drape(args: argparse.Namespace) -> int:
 def _cmd_animate(args: argparse.Namespace) -> int:
     from tryon.drape.animate import animate
 
-    rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume)
+    run = None
+    if args.parallel == "time":
+        from tryon.parallel import run_scene_time_parallel
+
+        def run(scene, work_dir, progress, resume):
+            return run_scene_time_parallel(scene, work_dir, workers=args.workers, partition=args.partition,
+                                           ray_address=args.ray_address, progress=progress, resume=resume,
+                                           write_objs=False)
+
+    rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume,
+                  run=run, duration=args.duration)
     print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
           f"{rep['max_strain'] * 100:.1f} %, penetration up to {rep['max_penetration_pct']:.2f} % of vertices, "
           f"intersections {rep['intersections']}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    import time
+
+    from tryon.viewer import screenshot_viewer, start_server, write_viewer
+
+    out = write_viewer(args.drape_dir, animation=args.animation)
+    print(f"viewer written to {out}")
+    if args.screenshot:
+        status = screenshot_viewer(out, args.screenshot, mode=args.mode)
+        print(f"screenshot ({args.mode}) -> {args.screenshot}: {status}")
+    if args.no_serve or args.screenshot:
+        return 0
+    server = start_server(out, args.port)
+    url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+    print(f"serving {url} (Ctrl-C to stop)")
+    if args.open:
+        import webbrowser
+
+        webbrowser.open(url)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        server.shutdown()
     return 0
 
 
@@ -96,6 +140,10 @@ def _cmd_body_range(args: argparse.Namespace) -> int:
     for r in rows:
         print(f"{r['gender']:7s} BMI asked {r['bmi_asked']:5.1f} achieved {r['bmi_achieved']:5.1f}  distortion {r['mesh_distortion']:.2f}  "
               f"largest local change {r['largest_local_change']:.2f}  {'ok' if r['supported'] else 'outside the supported range'}")
+    if args.render:
+        from tryon.body.range import render_range_sheet
+
+        print(f"bodies -> {render_range_sheet(args.render, height_cm=args.height_cm)}")
     return 0
 
 
@@ -131,7 +179,30 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         grid = args.grids[0] if args.grids != DEFAULT_GRIDS else 16
         run_robustness_bench(args.json, resolution=grid, duration=0.2 if args.quick else 0.5)
         return 0
-    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness")
+    if args.what == "grad":
+        from tryon.diff.bench import run_grad_bench
+
+        run_grad_bench(args.json, quick=args.quick)
+        return 0
+    if args.what == "parallel":
+        from tryon.parallel.bench import run_parallel_bench
+
+        run_parallel_bench(args.json, quick=args.quick, workers=args.workers)
+        return 0
+    if args.what == "drape":
+        from tryon.bench.drape import run_drape_bench
+
+        run_drape_bench(args.json, quick=args.quick)
+        return 0
+    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness, drape, grad, parallel")
+
+
+def _parallel_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--parallel", choices=["time"], help="time-domain parallel simulation (coarse-to-fine segments on Ray)")
+    p.add_argument("--workers", type=int, default=2, help="parallel workers (segments run at once)")
+    p.add_argument("--partition", choices=["uniform", "balanced", "adaptive"], default="adaptive",
+                   help="where segments start (see docs/PARALLEL.md)")
+    p.add_argument("--ray-address", help="join this Ray cluster instead of starting a local one")
 
 
 def _body_args(p: argparse.ArgumentParser) -> None:
@@ -162,11 +233,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-obj", action="store_true", help="skip the OBJ sequence")
     s.add_argument("--dump", action="store_true", help="print the example's YAML and exit")
     s.add_argument("--quiet", action="store_true")
+    _parallel_args(s)
     s.set_defaults(func=_cmd_simulate)
 
     d = sub.add_parser("drape", help="a garment of a size and fabric on a body from measurements")
     _body_args(d)
-    d.add_argument("--garment", default="tshirt", help="tshirt, longsleeve, skirt, trousers or dress")
+    d.add_argument("--garment", default="tshirt",
+                   help="tshirt, longsleeve, skirt, trousers, dress, or a garment .obj around the body (vt: material coords in m)")
     d.add_argument("--size", default="M", help="XS, S, M, L, XL, XXL or made-to-measure")
     d.add_argument("--fabric", default="gray-interlock", help="fabric preset or .json")
     d.add_argument("--edge-length", type=float, default=0.012, help="garment triangle edge length in metres")
@@ -181,13 +254,26 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--motion", default="walk", help="walk, arm-raise, turn, or a motion .npz / .bvh file")
     a.add_argument("--out", help="output directory (default DRAPE_DIR/animation-MOTION)")
     a.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
+    a.add_argument("--duration", type=float, help="simulated seconds (default: the whole motion)")
     a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
     a.add_argument("--quiet", action="store_true")
+    _parallel_args(a)
     a.set_defaults(func=_cmd_animate)
+
+    v = sub.add_parser("view", help="a local web page (three.js) of a drape or animation")
+    v.add_argument("drape_dir", help="output directory of `tryon drape`")
+    v.add_argument("--animation", help="show DRAPE_DIR/animation-NAME (from `tryon animate`) instead of the drape")
+    v.add_argument("--port", type=int, default=8765, help="local port (0: any free port)")
+    v.add_argument("--open", action="store_true", help="open the page in the default browser")
+    v.add_argument("--no-serve", action="store_true", help="only write DRAPE_DIR/viewer")
+    v.add_argument("--screenshot", help="save a picture of the page (headless Chromium) to this PNG instead of serving")
+    v.add_argument("--mode", choices=["strain", "pressure", "plain"], default="strain", help="colouring for --screenshot")
+    v.set_defaults(func=_cmd_view)
 
     r = sub.add_parser("body-range", help="the BMI range the Anny body reaches without distortion")
     r.add_argument("--height-cm", type=float, default=172.0)
     r.add_argument("--json", help="also write the table as JSON")
+    r.add_argument("--render", help="also render the bodies (front views, BMI 14-48) into this PNG")
     r.set_defaults(func=_cmd_body_range)
 
     f = sub.add_parser("fabrics", help="list fabric presets")
@@ -195,13 +281,18 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(func=_cmd_fabrics)
 
     b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")
-    b.add_argument("what", choices=["sim", "robustness"])
+    b.add_argument("what", choices=["sim", "robustness", "drape", "grad", "parallel"])
     b.add_argument("--json", default="bench.json", help="output JSON path")
     b.add_argument("--quick", action="store_true", help="fewer steps (smoke run)")
     b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
+    b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
     b.set_defaults(func=_cmd_bench)
+
+    from tryon.diff.cli import add_commands as add_diff_commands
+
+    add_diff_commands(sub)
     return p
 
 

@@ -24,7 +24,8 @@ from tryon.body.anny_model import DTYPE, LOCAL_CHANGES, BodyShape, ShapeParams, 
 from tryon.body.measure import GIRTH_BANDS, bmi, girth, measurements, stature
 from tryon.errors import TryonError
 
-BMI_RANGE = (15.0, 45.0)
+# per gender: where the fitted mesh still looks like a person (docs/BODY.md, `tryon body-range --render`)
+BMI_RANGE = {"female": (15.0, 45.0), "male": (17.0, 45.0)}
 HEIGHT_RANGE_CM = (140.0, 210.0)
 AGE_RANGE = (16.0, 90.0)
 GIRTH_RANGE_CM = {"chest": (65.0, 160.0), "waist": (50.0, 160.0), "hip": (70.0, 170.0)}
@@ -78,11 +79,12 @@ class Measurements:
         if self.weight_kg is not None and self.weight_kg <= 0:
             raise BodyFitError(f"weight must be positive, got {self.weight_kg} kg")
         b = self.target_bmi()
-        if b is not None and not BMI_RANGE[0] <= b <= BMI_RANGE[1]:
+        lo, hi = BMI_RANGE[self.gender]
+        if b is not None and not lo <= b <= hi:
             h = self.height_cm / 100.0
             raise BodyFitError(
-                f"BMI {b:.1f} is outside the supported range {BMI_RANGE[0]:.0f}-{BMI_RANGE[1]:.0f} "
-                f"(at {self.height_cm:.0f} cm: {BMI_RANGE[0] * h * h:.0f}-{BMI_RANGE[1] * h * h:.0f} kg); "
+                f"BMI {b:.1f} is outside the supported range {lo:.0f}-{hi:.0f} for a {self.gender} body "
+                f"(at {self.height_cm:.0f} cm: {lo * h * h:.0f}-{hi * h * h:.0f} kg); "
                 f"beyond it the Anny body mesh distorts"
             )
         for name, value in self.girths().items():

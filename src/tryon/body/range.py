@@ -17,7 +17,7 @@ PROBE_BMIS = (12, 14, 15, 17, 20, 25, 30, 35, 40, 45, 48, 50)
 def bmi_range_table(height_cm: float = 172.0, bmis=PROBE_BMIS) -> list[dict]:
     rows = []
     saved = fitmod.BMI_RANGE
-    fitmod.BMI_RANGE = (5.0, 80.0)  # probe beyond the supported range
+    fitmod.BMI_RANGE = {g: (5.0, 80.0) for g in saved}  # probe beyond the supported range
     try:
         for gender in ("female", "male"):
             for b in bmis:
@@ -26,7 +26,42 @@ def bmi_range_table(height_cm: float = 172.0, bmis=PROBE_BMIS) -> list[dict]:
                 rows.append({"gender": gender, "height_cm": height_cm, "bmi_asked": float(b), "bmi_achieved": f.achieved["bmi"],
                              "mesh_distortion": f.distortion, "largest_local_change": float(local),
                              "weight_phenotype": f.params.weight, "muscle_phenotype": f.params.muscle,
-                             "supported": bool(saved[0] <= b <= saved[1])})
+                             "supported": bool(saved[gender][0] <= b <= saved[gender][1])})
     finally:
         fitmod.BMI_RANGE = saved
     return rows
+
+
+SHEET_BMIS = (14, 15, 17, 25, 35, 40, 45, 48)
+
+
+def render_range_sheet(path, height_cm: float = 172.0, bmis=SHEET_BMIS, size=(220, 520)):
+    """Front views of the fitted bodies (rows: female, male; columns: BMI asked), each
+    labelled with the BMI and whether it is inside `fit.BMI_RANGE`: the picture the
+    supported range is judged on (docs/BODY.md)."""
+    import numpy as np
+    from PIL import Image, ImageDraw
+
+    from tryon.render.colormap import _font
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
+
+    saved = fitmod.BMI_RANGE
+    fitmod.BMI_RANGE = {g: (5.0, 80.0) for g in saved}
+    rows = []
+    try:
+        for gender in ("female", "male"):
+            tiles = []
+            for b in bmis:
+                f = fitmod.fit_body(fitmod.Measurements(height_cm=height_cm, bmi=float(b), gender=gender))
+                v = f.shape.vertices.detach().numpy()
+                cam = Camera.fit([v], "front", aspect=size[0] / size[1], margin=1.02)
+                img = Image.fromarray(render_meshes([RenderMesh(v, f.shape.faces, color=(0.8, 0.68, 0.6))], *size, camera=cam))
+                draw = ImageDraw.Draw(img)
+                ok = saved[gender][0] <= b <= saved[gender][1]
+                draw.text((8, 6), f"{gender} BMI {b}", fill=(0, 0, 0), font=_font(16))
+                draw.text((8, 26), "supported" if ok else "refused", fill=(20, 120, 40) if ok else (180, 30, 30), font=_font(16))
+                tiles.append(np.asarray(img.convert("RGB")))
+            rows.append(np.concatenate(tiles, axis=1))
+    finally:
+        fitmod.BMI_RANGE = saved
+    return save_png(path, np.concatenate(rows, axis=0))

@@ -100,9 +100,10 @@ def render_preview(scene: Scene, positions: np.ndarray, times: np.ndarray, size=
 
 
 def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None = None, dt: float = 0.01,
-            progress: bool = True, resume: bool = False, run=None) -> dict:
+            progress: bool = True, resume: bool = False, run=None, duration: float | None = None) -> dict:
     """Simulate the drape in `drape_dir` through `motion` and write the outputs (see the
-    module docstring) into `out` (default DIR/animation-<motion>). `run(scene, work_dir,
+    module docstring) into `out` (default DIR/animation-<motion>). `duration` (s) cuts the
+    motion short (default: the whole motion plus the blend from the drape's pose). `run(scene, work_dir,
     progress, resume)` may replace the serial simulation (e.g. a time-parallel run); it
     returns a `tryon.sim.runner.RunResult`."""
     from tryon.io.atomic import atomic_output_dir, atomic_write
@@ -111,7 +112,7 @@ def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None 
     from tryon.sim.runner import render_state_png, simulate
 
     t0 = time.perf_counter()
-    scene = animation_scene(drape_dir, motion, dt=dt)
+    scene = animation_scene(drape_dir, motion, dt=dt, duration=duration)
     out = Path(out) if out is not None else Path(drape_dir) / f"animation-{Path(str(motion)).stem}"
     work = out.with_name(out.name + ".checkpoint")
     work.mkdir(parents=True, exist_ok=True)

@@ -55,12 +55,13 @@ def report_dict(result) -> dict:
     g = result.garment
     return {
         "garment": req.garment,
-        "size": req.size or "made-to-measure",
+        "size": None if req.garment_obj is not None else (req.size or "made-to-measure"),
         "fabric": req.fabric,
         "body": result.person.report(),
         "fit_model": result.fit_model.report() if result.fit_model is not None else None,
-        "pattern": {"panels": [p.name for p in g.pattern.panels], "seams": len(g.pattern.seams),
-                    "area_m2": g.pattern.area(), "edge_length_m": req.edge_length},
+        "pattern": ({"panels": [p.name for p in g.pattern.panels], "seams": len(g.pattern.seams),
+                     "area_m2": g.pattern.area(), "edge_length_m": req.edge_length}
+                    if g.pattern is not None else {"obj": g.stats.get("source")}),
         "mesh": {"garment_vertices": int(len(g.vertices)), "garment_faces": int(len(g.faces)), "body_vertices": int(len(result.body_vertices))},
         "dressing": g.stats,
         **{k: v for k, v in result.metrics.items()},
@@ -83,7 +84,7 @@ def write_outputs(result, out: str | Path) -> dict:
     bv, bf = result.body_vertices, result.body_faces
     report = report_dict(result)
     with atomic_output_dir(out) as tmp:
-        write_obj(tmp / "garment.obj", result.x, g.faces, uv=g.uv)
+        write_obj(tmp / "garment.obj", result.x, g.faces, corner_uv=g.corner_uv)  # vt: material coordinates (m)
         write_obj(tmp / "body.obj", bv, bf)
         write_glb(tmp / "tryon.glb", [(bv, bf, SKIN, "body"), (result.x, g.faces, CLOTH, "garment")])
         for view, img in zip(VIEWS, render_views(bv, bf, result.x, g.faces)):
@@ -93,9 +94,10 @@ def write_outputs(result, out: str | Path) -> dict:
         kpa = pressure_face_values(g.faces, result.pressure) / 1000.0
         save_png(tmp / "pressure_map.png", fit_map_image(bv, bf, result.x, g.faces, kpa,
                                                          vmax=max(0.5, float(np.percentile(kpa, 99))), label="contact kPa"))
-        g.pattern.save(tmp / "pattern.json")
-        g.pattern.to_svg(tmp / "pattern.svg")
-        plot_pattern(g.pattern, tmp / "pattern.png")
+        if g.pattern is not None:
+            g.pattern.save(tmp / "pattern.json")
+            g.pattern.to_svg(tmp / "pattern.svg")
+            plot_pattern(g.pattern, tmp / "pattern.png")
         save_frames_npz(tmp / "frames.npz", np.stack(result.frames), g.faces, uv=g.uv, times=np.asarray(result.frame_times),
                         body_vertices=bv, body_faces=bf, face_strain=result.strain, vertex_pressure=result.pressure)
         save_state(result, tmp / STATE_FILE)

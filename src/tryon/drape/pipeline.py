@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from tryon.body.fit import BodyFit, Measurements, fit_body
 from tryon.body.measure import drafting_measurements
+from tryon.body.motion import morph_keyframes
 from tryon.body.pose import BodyPose, posed_body
 from tryon.errors import TryonError
 from tryon.fabric import load_fabric
@@ -33,6 +34,7 @@ from tryon.garment.dress import DressedGarment, dress_cached
 from tryon.garment.sizes import SIZES, size_measurements
 
 STATE_FILE = "drape_state.npz"
+DRAPE_SUBSTEP_DEPTH = 1
 
 
 @dataclass
@@ -50,9 +52,17 @@ class DrapeRequest:
     friction: float = 0.4        # skin-cloth Coulomb coefficient once the body has its shape
     morph_friction: float = 0.0  # while the body morphs the cloth slides (as when putting it on)
 
+    @property
+    def garment_obj(self) -> Path | None:
+        """The garment OBJ file when `garment` names one (tryon.garment.obj_garment)."""
+        return Path(self.garment) if self.garment.lower().endswith(".obj") else None
+
     def validate(self) -> None:
-        if self.garment not in GARMENTS:
-            raise TryonError(f"unknown garment {self.garment!r}; available: {', '.join(GARMENTS)}")
+        if self.garment_obj is not None:
+            if not self.garment_obj.is_file():
+                raise TryonError(f"garment OBJ {self.garment_obj} does not exist")
+        elif self.garment not in GARMENTS:
+            raise TryonError(f"unknown garment {self.garment!r}; available: {', '.join(GARMENTS)}, or a garment .obj")
         if self.size is not None and self.size.upper() not in SIZES:
             raise TryonError(f"unknown size {self.size!r}; standard sizes: {', '.join(SIZES)} (or made-to-measure)")
         if not 0.004 <= self.edge_length <= 0.05:
@@ -80,18 +90,11 @@ class DrapeResult:
 
 def fit_model_measurements(request: DrapeRequest) -> Measurements | None:
     """The fit model of a standard size: the size chart's girths at its stature."""
-    if request.size is None:
+    if request.size is None or request.garment_obj is not None:
         return None
     s = size_measurements(request.size, request.body.gender)
     return Measurements(height_cm=s["height_cm"], gender=request.body.gender, chest_cm=s["chest_cm"],
                         waist_cm=s["waist_cm"], hip_cm=s["hip_cm"], age=request.body.age)
-
-
-def smoothstep_keyframes(a: np.ndarray, b: np.ndarray, duration: float, count: int = 9) -> tuple[np.ndarray, np.ndarray]:
-    """Key frames [count, V, 3] from a to b with smoothstep timing (no jerk at the ends)."""
-    s = np.linspace(0.0, 1.0, count)
-    w = s * s * (3 - 2 * s)
-    return np.stack([(1 - wi) * a + wi * b for wi in w]), s * duration
 
 
 class SkinBinding:
@@ -129,16 +132,18 @@ def keep_outside(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarra
 def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
-    from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
     from tryon.sim.model import ClothModel, CollisionSettings
     from tryon.sim.obstacles import Motion, Obstacle
 
     fabric = load_fabric(request.fabric)
-    frames, times = smoothstep_keyframes(start.vertices, target.vertices, request.morph_time)
+    frames, times = morph_keyframes(start.vertices, target.vertices, request.morph_time)
     body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
     model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body],
                        collision=CollisionSettings(thickness=request.thickness, friction=request.morph_friction, self_friction=0.3))
-    solver = ImplicitEulerSolver(model)
+    # a failing step is split once, then its impact zones are made rigid: on a garment
+    # far too small for the body, deeper splitting only repeats the same infeasible zones
+    solver = ImplicitEulerSolver(model, StepOptions(max_substep_depth=DRAPE_SUBSTEP_DEPTH))
     state = model.initial_state()
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
     t_end = request.morph_time + request.max_settle_time
@@ -190,14 +195,20 @@ def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
     fit_model = fit_body(fm_meas) if fm_meas is not None else None
     timings["fit_model_s"] = time.perf_counter() - t1
     model_shape = (fit_model or person).shape
-    m = drafting_measurements(model_shape)
-    pattern = draft(request.garment, m, size=request.size.upper() if request.size else "made-to-measure",
-                    meta={"gender": request.body.gender})
-    start = posed_body(model_shape, "a", m["crotch_height"])
     pm = drafting_measurements(person.shape)
     target = posed_body(person.shape, "a", pm["crotch_height"])
     t2 = time.perf_counter()
-    garment = dress_cached(pattern, start, load_fabric(request.fabric), request.edge_length, progress=progress)
+    if request.garment_obj is not None:  # already around the person: nothing to morph
+        from tryon.garment.obj_garment import garment_from_obj
+
+        start = target
+        garment = garment_from_obj(request.garment_obj, target, clearance=request.thickness + 0.002)
+    else:
+        m = drafting_measurements(model_shape)
+        pattern = draft(request.garment, m, size=request.size.upper() if request.size else "made-to-measure",
+                        meta={"gender": request.body.gender})
+        start = posed_body(model_shape, "a", m["crotch_height"])
+        garment = dress_cached(pattern, start, load_fabric(request.fabric), request.edge_length, progress=progress)
     timings["dress_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     x, frames, times, stats, solver = simulate_drape(request, garment, start, target, progress=progress)
@@ -223,7 +234,7 @@ def save_state(result: DrapeResult, path: Path) -> None:
         np.savez_compressed(fh, x=result.x, faces=g.faces, uv=g.uv, corner_uv=g.corner_uv, face_panel=g.face_panel,
                             body_vertices=result.body_vertices, body_faces=result.body_faces,
                             body_params=json.dumps(result.person.params.to_dict()), request=json.dumps(req),
-                            pattern=json.dumps(g.pattern.to_dict()))
+                            pattern=json.dumps(g.pattern.to_dict() if g.pattern is not None else {"name": g.name}))
 
 
 def load_state(path: Path) -> dict:

@@ -275,7 +275,7 @@ class DressedGarment:
     uv: np.ndarray
     corner_uv: np.ndarray
     face_panel: np.ndarray
-    pattern: Pattern
+    pattern: Pattern | None      # None: imported from an OBJ (tryon.garment.obj_garment)
     seam_vertices: np.ndarray
     stats: dict = field(default_factory=dict)
 
@@ -284,20 +284,26 @@ class DressedGarment:
 
         pos = self.vertices if x is None else x
         return ClothMesh(torch.from_numpy(pos), torch.from_numpy(self.uv), torch.from_numpy(self.faces),
-                         name=self.pattern.name, face_uv=torch.from_numpy(self.corner_uv))
+                         name=self.name, face_uv=torch.from_numpy(self.corner_uv))
+
+    @property
+    def name(self) -> str:
+        return self.pattern.name if self.pattern is not None else Path(self.stats.get("source", "garment")).stem
 
     def save(self, path: str | Path) -> Path:
         with atomic_write(path, "wb") as fh:
             np.savez_compressed(fh, vertices=self.vertices, faces=self.faces, uv=self.uv, corner_uv=self.corner_uv,
                                 face_panel=self.face_panel, seam_vertices=self.seam_vertices,
-                                pattern=json.dumps(self.pattern.to_dict()), stats=json.dumps(self.stats))
+                                pattern=json.dumps(self.pattern.to_dict() if self.pattern is not None else None),
+                                stats=json.dumps(self.stats))
         return Path(path)
 
     @classmethod
     def load(cls, path: str | Path) -> "DressedGarment":
         d = np.load(path, allow_pickle=False)
+        pattern = json.loads(str(d["pattern"]))
         return cls(d["vertices"], d["faces"], d["uv"], d["corner_uv"], d["face_panel"],
-                   Pattern.from_dict(json.loads(str(d["pattern"]))), d["seam_vertices"], json.loads(str(d["stats"])))
+                   Pattern.from_dict(pattern) if pattern is not None else None, d["seam_vertices"], json.loads(str(d["stats"])))
 
 
 def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: float = 0.01, max_steps: int = 300,

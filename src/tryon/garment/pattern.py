@@ -35,7 +35,10 @@ class Edge:
     kind: str = "line"
 
     def __post_init__(self) -> None:
-        self.points = np.asarray(self.points, dtype=np.float64)
+        try:
+            self.points = np.asarray(self.points, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise PatternError(f"edge {self.name!r}: points must be numbers ({exc})") from None
         need = {"line": 2, "bezier": 4}.get(self.kind)
         if need is None:
             raise PatternError(f"edge {self.name!r}: kind must be 'line' or 'bezier', got {self.kind!r}")

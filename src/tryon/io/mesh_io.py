@@ -244,8 +244,10 @@ def _checked_uv(uv: Any, n: int, out: Path) -> np.ndarray:
     return arr
 
 
-def write_obj(path: PathLike, vertices: Any, faces: Any, uv: Any = None, precision: int = 9) -> Path:
-    """Write a triangle mesh as OBJ (atomic); ``uv [N,2]`` becomes one ``vt`` per vertex.
+def write_obj(path: PathLike, vertices: Any, faces: Any, uv: Any = None, precision: int = 9,
+              corner_uv: Any = None) -> Path:
+    """Write a triangle mesh as OBJ (atomic); ``uv [N,2]`` becomes one ``vt`` per vertex,
+    or ``corner_uv [F,3,2]`` one per face corner (seams keep both sides' coordinates).
 
     ``precision`` is the number of significant digits (9 keeps sub-micrometre detail
     for metre-scale meshes).
@@ -256,7 +258,15 @@ def write_obj(path: PathLike, vertices: Any, faces: Any, uv: Any = None, precisi
     with atomic_write(out, "w") as fh:
         fh.write("# written by tryon\n")
         np.savetxt(fh, v, fmt=f"v {num} {num} {num}")
-        if uv is None:
+        if corner_uv is not None:
+            c = _as_numpy(corner_uv).astype(np.float64)
+            if c.shape != (len(f), 3, 2) or not np.isfinite(c).all():
+                raise MeshError(f"writing {out}: corner_uv must be finite [{len(f)}, 3, 2], got shape {tuple(c.shape)}")
+            coords, index = np.unique(c.reshape(-1, 2), axis=0, return_inverse=True)
+            np.savetxt(fh, coords, fmt=f"vt {num} {num}")
+            corners = np.stack([f + 1, index.reshape(-1, 3) + 1], axis=2).reshape(len(f), 6)
+            np.savetxt(fh, corners, fmt="f %d/%d %d/%d %d/%d")
+        elif uv is None:
             np.savetxt(fh, f + 1, fmt="f %d %d %d")
         else:
             np.savetxt(fh, _checked_uv(uv, len(v), out), fmt=f"vt {num} {num}")

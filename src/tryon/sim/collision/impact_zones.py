@@ -118,10 +118,13 @@ def resolve_collisions(
     max_iterations: int = 30,
     gap_fraction: float = GAP_FRACTION,
     tol: float = QP_TOL,
+    trace: list | None = None,
 ) -> tuple[np.ndarray, CollisionReport]:
     """Impact-zone collision response (see the module docstring). x0 must be free of
     intersections; on success the returned positions are, and no impact remains between x0
-    and them. Pinned vertices and obstacles are not moved. Returns (positions, report)."""
+    and them. Pinned vertices and obstacles are not moved. Returns (positions, report).
+    `trace`, when a list, receives one tuple (positions the impacts were found against,
+    number of new constraints appended, QPResult) per projection, for `tryon.diff`."""
     x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned = _prepare_response(
         x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned_mask
     )
@@ -147,6 +150,8 @@ def resolve_collisions(
         constraints = constraints + impacts
         lam = np.concatenate([lam, np.zeros(len(impacts))])
         qp = solve_projection(x1, inv_mass, constraints.idx, constraints.w, constraints.n, ob1, target, lam, tol)
+        if trace is not None:
+            trace.append((x, len(impacts), qp))
         x, lam = qp.z, qp.lam
         report.iterations = it + 1
         report.qp_sweeps += qp.sweeps

@@ -1,0 +1,169 @@
+"""Observed cloth sequences (`tryon fit-fabric` input): reading, writing, and making one
+from a fabric preset in the hanging-in-wind scene.
+
+An observed file is an ``.npz`` with
+
+* ``positions [T, N, 3]`` (m): vertex positions per frame, frame 0 the initial state (at
+  rest, zero velocity);
+* ``faces [F, 3]``, ``uv [N, 2]`` (material coordinates, m);
+* ``pinned [k]``: vertices held at their frame-0 positions;
+* ``frame_time`` (s), ``gravity [3]`` (m/s^2), ``wind_velocity [3]`` (m/s),
+  ``wind_density``, ``wind_drag`` (ARCSim's face drag model, `tryon.sim.forces.wind`);
+* optionally ``dt`` (s), the simulation step (default: the largest step <= 0.01 s that
+  divides ``frame_time``), and ``fabric`` (the name of the fabric that made it).
+
+These keys define the hanging-in-wind scene completely (no obstacles, default contact
+settings), so ``--scene`` is optional for such files.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from tryon.errors import TryonError
+from tryon.fabric.base import Fabric
+from tryon.fabric.presets import load_fabric
+from tryon.io.atomic import atomic_write
+from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.mesh import ClothMesh
+from tryon.sim.model import ClothModel, PinGroup, Wind
+from tryon.sim.scene import example_spec, parse_scene
+
+REQUIRED_KEYS = ("positions", "faces", "uv", "pinned", "frame_time", "gravity", "wind_velocity", "wind_density", "wind_drag")
+MAX_DT = 0.01
+
+
+@dataclass
+class Observation:
+    """An observed sequence and the scene it was recorded in (module docstring)."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    pinned: np.ndarray
+    frame_time: float
+    gravity: np.ndarray
+    wind_velocity: np.ndarray
+    wind_density: float
+    wind_drag: float
+    dt: float
+    fabric: str = ""
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, int(round(self.frame_time / self.dt)))
+
+    def cloth_size(self) -> float:
+        """Diagonal of the material-space bounding box (m), the scale of simulation errors."""
+        return float(np.linalg.norm(self.uv.max(0) - self.uv.min(0)))
+
+    def model(self, fabric: Fabric) -> ClothModel:
+        """The hanging-in-wind `ClothModel` of this observation with `fabric`."""
+        mesh = ClothMesh(torch.from_numpy(self.positions[0].copy()), torch.from_numpy(self.uv), torch.from_numpy(self.faces),
+                         name="observed")
+        pins = [PinGroup(torch.from_numpy(self.pinned))] if len(self.pinned) else []
+        wind = Wind(tuple(float(v) for v in self.wind_velocity), float(self.wind_density), float(self.wind_drag))
+        return ClothModel(mesh, fabric, pins=pins, gravity=tuple(float(g) for g in self.gravity), wind=wind)
+
+
+def default_dt(frame_time: float) -> float:
+    """The largest step <= `MAX_DT` that divides the frame time."""
+    return frame_time / max(1, math.ceil(frame_time / MAX_DT - 1e-9))
+
+
+def _scalar(data, key: str, path: str) -> float:
+    value = np.asarray(data[key], dtype=np.float64)
+    if value.size != 1 or not np.isfinite(value).all():
+        raise TryonError(f"{path}: {key!r} must be one finite number, got shape {list(value.shape)}")
+    return float(value.reshape(()))
+
+
+def _vector(data, key: str, path: str) -> np.ndarray:
+    value = np.asarray(data[key], dtype=np.float64)
+    if value.shape != (3,) or not np.isfinite(value).all():
+        raise TryonError(f"{path}: {key!r} must be 3 finite numbers, got shape {list(value.shape)}")
+    return value
+
+
+def load_observed(path: str | Path) -> Observation:
+    """Read and check an observed ``.npz`` (module docstring)."""
+    path = str(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise TryonError(f"observed file {path}: cannot be read as .npz ({exc})") from exc
+    missing = [k for k in REQUIRED_KEYS if k not in data.files]
+    if missing:
+        raise TryonError(f"observed file {path}: missing keys {missing}; required: {list(REQUIRED_KEYS)} "
+                         f"(make one with `tryon fit-fabric --make-observed PRESET OUT.npz`)")
+    pos = np.asarray(data["positions"], dtype=np.float64)
+    if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[0] < 2 or not np.isfinite(pos).all():
+        raise TryonError(f"{path}: 'positions' must be finite [T>=2, N, 3], got shape {list(pos.shape)}")
+    n = pos.shape[1]
+    faces = np.asarray(data["faces"], dtype=np.int64)
+    if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= n:
+        raise TryonError(f"{path}: 'faces' must be [F, 3] vertex indices below {n}, got shape {list(faces.shape)}")
+    uv = np.asarray(data["uv"], dtype=np.float64)
+    if uv.shape != (n, 2):
+        raise TryonError(f"{path}: 'uv' must be [{n}, 2] (one material coordinate per vertex), got {list(uv.shape)}")
+    pinned = np.asarray(data["pinned"], dtype=np.int64).reshape(-1)
+    if len(pinned) and (pinned.min() < 0 or pinned.max() >= n):
+        raise TryonError(f"{path}: 'pinned' vertex indices must lie in [0, {n - 1}]")
+    frame_time = _scalar(data, "frame_time", path)
+    if frame_time <= 0:
+        raise TryonError(f"{path}: 'frame_time' must be positive, got {frame_time}")
+    dt = _scalar(data, "dt", path) if "dt" in data.files else default_dt(frame_time)
+    if not 0 < dt <= frame_time:
+        raise TryonError(f"{path}: 'dt' must lie in (0, frame_time], got {dt}")
+    return Observation(pos, faces, uv, pinned, frame_time, _vector(data, "gravity", path),
+                       _vector(data, "wind_velocity", path), _scalar(data, "wind_density", path),
+                       _scalar(data, "wind_drag", path), dt, str(data["fabric"]) if "fabric" in data.files else "")
+
+
+def save_observed(path: str | Path, obs: Observation) -> None:
+    """Write `obs` as an observed ``.npz`` (atomic)."""
+    with atomic_write(path, "wb") as fh:
+        np.savez(fh, positions=obs.positions, faces=obs.faces, uv=obs.uv, pinned=obs.pinned, frame_time=obs.frame_time,
+                 gravity=obs.gravity, wind_velocity=obs.wind_velocity, wind_density=obs.wind_density,
+                 wind_drag=obs.wind_drag, dt=obs.dt, fabric=obs.fabric)
+
+
+def simulate_frames(model: ClothModel, frames: int, steps_per_frame: int, dt: float, progress: bool = False) -> np.ndarray:
+    """Positions ``[frames, N, 3]`` of a forward run from the model's initial state at rest."""
+    solver = ImplicitEulerSolver(model)
+    state = model.initial_state()
+    out = [state.x.numpy().copy()]
+    for _ in tqdm(range(frames - 1), desc="simulating", unit="frame", disable=not progress, leave=False):
+        for _ in range(steps_per_frame):
+            state, _ = solver.step(state, dt)
+        out.append(state.x.numpy().copy())
+    return np.stack(out)
+
+
+def make_observed(fabric: str | Fabric, resolution: int = 10, duration: float = 1.0, frame_time: float = 0.04,
+                  dt: float = 0.01, progress: bool = False) -> Observation:
+    """A hanging-in-wind sequence made with `fabric` (a preset name, file or `Fabric`):
+    the `hanging` example (1 m square pinned at two corners, (2, 2, 0) m/s wind)."""
+    fab = load_fabric(fabric) if not isinstance(fabric, Fabric) else fabric
+    if resolution < 2 or duration <= 0 or frame_time <= 0 or not 0 < dt <= frame_time:
+        raise TryonError("make_observed: need resolution >= 2 and 0 < dt <= frame_time, duration > 0")
+    spec = example_spec("hanging", resolution)
+    scene = parse_scene(spec)
+    wind = scene.model.wind
+    base = Observation(scene.model.mesh.x.numpy()[None].copy(), scene.model.faces.numpy(),
+                       scene.model.mesh.uv.numpy(), scene.model.pinned.numpy(), frame_time,
+                       scene.model.gravity.numpy(), np.asarray(wind.velocity, float), wind.density, wind.drag, dt,
+                       getattr(fab, "name", ""))
+    frames = int(round(duration / frame_time)) + 1
+    base.positions = simulate_frames(base.model(fab), frames, base.steps_per_frame, dt, progress)
+    return base

@@ -1,0 +1,250 @@
+"""`tryon bench parallel`: time-parallel against serial runs of a garment animation and of
+`sphere-drop`, the model bounds, popping errors at segment boundaries, a scheduler
+simulation for many workers, and pictures.
+
+For each scene: the serial fine run (timed, every step's state kept), then time-parallel
+runs on a local Ray for every worker count P (Ray start-up and worker warm-up are
+excluded from the timing and reported apart). Records carry the measured K (fine over
+coarse seconds per step), the speedup over the serial run against the bounds
+K p / (K + p - 1) and K - K (1 - 1/K)^p, and the relative curvature error at every
+segment start before (upsampled coarse state) and after detail recovery.
+
+The scheduler simulation replays the measured per-step costs (fine, coarse, recovery),
+tiled to a long run, through the partition model to predict speedup and efficiency for
+P = 8 ... 512 (`<json>-scheduler.png`). `<json>-boundary.png` shows the garment at the
+first segment boundary: serial, upsampled coarse (before recovery), recovered.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from tryon.io.atomic import atomic_write
+from tryon.parallel.coarse import CoarseRun
+from tryon.parallel.curvature import relative_curvature_error
+from tryon.parallel.driver import ParallelOptions, simulate_time_parallel
+from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
+from tryon.parallel.partition import balanced_cuts, speedup_bounds, uniform_cuts
+from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.scene import Scene, example_scene
+
+SCHEDULER_P = (8, 16, 32, 64, 128, 256, 512)
+DRAPE = {"height_cm": 172.0, "weight_kg": 70.0, "gender": "female", "garment": "tshirt", "size": "M",
+         "fabric": "gray-interlock", "edge_length": 0.03}
+
+
+def bench_drape_dir() -> Path:
+    """A small t-shirt drape for the garment animation, made once and cached."""
+    from tryon.garment.dress import cache_dir
+
+    out = cache_dir() / "bench-parallel-drape"
+    if not (out / "drape_state.npz").exists():
+        from tryon.body.fit import Measurements
+        from tryon.drape import DrapeRequest, drape
+        from tryon.drape.outputs import write_outputs
+
+        d = DRAPE
+        req = DrapeRequest(Measurements(height_cm=d["height_cm"], gender=d["gender"], weight_kg=d["weight_kg"]),
+                           garment=d["garment"], size=d["size"], fabric=d["fabric"], edge_length=d["edge_length"])
+        write_outputs(drape(req, progress=False), out)
+    return out
+
+
+def bench_scenes(quick: bool) -> list[Scene]:
+    from tryon.drape.animate import animation_scene
+
+    garment = animation_scene(bench_drape_dir(), "walk", dt=0.01, duration=0.3 if quick else 0.8)
+    sphere = example_scene("sphere-drop", 17 if quick else 33, duration=0.4 if quick else 1.0)
+    return [garment, sphere]
+
+
+def serial_run(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The serial fine run: states [N+1, n, 3] at every step and seconds per step [N]."""
+    solver = ImplicitEulerSolver(scene.model, scene.options)
+    state = scene.model.initial_state()
+    xs, seconds = [state.x.numpy().copy()], []
+    for _ in tqdm(range(scene.num_steps), desc=f"serial {scene.name}", leave=False, disable=None):
+        tic = time.perf_counter()
+        state, _ = solver.step(state, scene.dt)
+        seconds.append(time.perf_counter() - tic)
+        xs.append(state.x.numpy().copy())
+    return np.stack(xs), np.asarray(seconds)
+
+
+def coarse_costs(hier: Hierarchy) -> np.ndarray:
+    """Seconds per fine step of the coarse run over the whole scene."""
+    run = CoarseRun(hier)
+    while run.position < hier.fine.num_steps:
+        run.advance()
+    return np.repeat(np.asarray(run.seconds) / hier.dt_ratio, hier.dt_ratio)[: hier.fine.num_steps]
+
+
+def boundary_errors(hier: Hierarchy, segments, states: np.ndarray) -> list[dict]:
+    """Relative curvature error against the serial state at every segment start."""
+    model = hier.fine.model
+    out = []
+    for s in segments:
+        if s.x_upsampled is None:
+            continue
+        ref = states[s.start]
+        out.append({"step": s.start, "before": relative_curvature_error(model, s.x_upsampled, ref),
+                    "after": relative_curvature_error(model, s.x_start, ref),
+                    "recovery_iterations": s.recovery["iterations"], "recovery_s": s.recovery["seconds"]})
+    return out
+
+
+def _mean(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None
+
+
+def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s: float, workers: int,
+                    partition: str) -> tuple[dict, object]:
+    opts = ParallelOptions(workers=workers, partition=partition)
+    r = simulate_time_parallel(scene, opts, progress=False, hierarchy=hier)
+    par = r.summary["parallel"]
+    K = par["K"]
+    errors = boundary_errors(hier, r.segments, states)
+    record = {
+        "scene": scene.name, "workers": workers, "partition": partition, "segments": len(r.segments),
+        "cuts": par["cuts"], "fine_vertices": hier.fine.model.num_vertices,
+        "coarse_vertices": hier.coarse.model.num_vertices, "steps": scene.num_steps,
+        "serial_s": serial_s, "parallel_s": r.summary["wall_s"], "ray_startup_s": par["ray_startup_s"],
+        "speedup": serial_s / r.summary["wall_s"], "K": K,
+        "bound_uniform": speedup_bounds(K, workers)["uniform"] if K else None,
+        "bound_balanced": speedup_bounds(K, workers)["balanced"] if K else None,
+        "curvature_error_before": _mean([e["before"] for e in errors]),
+        "curvature_error_after": _mean([e["after"] for e in errors]),
+        "boundaries": errors, "resubmitted": par["resubmitted"],
+        "max_deviation_from_serial_m": float(np.abs(r.positions[-1] - states[-1]).max()),
+    }
+    return record, r
+
+
+def simulate_schedule(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, p: int, partition: str) -> float:
+    """Wall time of a time-parallel run with p segments given per-step costs: segment j
+    starts once the coarse run has passed s_j + 1 (plus its recovery) and runs its steps."""
+    n = len(fine)
+    K = float(fine.mean() / coarse.mean())
+    cuts = np.asarray(balanced_cuts(n, p, K) if partition == "balanced" else uniform_cuts(n, p))
+    cf = np.concatenate([[0.0], np.cumsum(fine)])
+    cc = np.concatenate([[0.0], np.cumsum(coarse)])
+    start = np.where(cuts[:-1] == 0, 0.0, cc[np.minimum(cuts[:-1] + 1, n)] + recovery_s)
+    return float(np.max(start + cf[cuts[1:]] - cf[cuts[:-1]]))
+
+
+def scheduler_predictions(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, scene: str) -> list[dict]:
+    """Predicted speedup and efficiency for P = 8..512 from measured costs tiled to 16 x 512 steps."""
+    n = 16 * max(SCHEDULER_P)
+    f, c = np.resize(fine, n), np.resize(coarse, n)
+    out = []
+    for p in SCHEDULER_P:
+        for partition in ("uniform", "balanced"):
+            speedup = float(f.sum() / simulate_schedule(f, c, recovery_s, p, partition))
+            out.append({"scene": scene, "workers": p, "partition": partition, "predicted_speedup": speedup,
+                        "efficiency": speedup / p, "K": float(f.mean() / c.mean()), "steps": n})
+    return out
+
+
+def plot_scheduler(predictions: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for scene in sorted({r["scene"] for r in predictions}):
+        for partition, style in (("uniform", "--"), ("balanced", "-")):
+            rows = [r for r in predictions if r["scene"] == scene and r["partition"] == partition]
+            P = [r["workers"] for r in rows]
+            axes[0].plot(P, [r["predicted_speedup"] for r in rows], style, marker="o", label=f"{scene} {partition}")
+            axes[1].plot(P, [r["efficiency"] for r in rows], style, marker="o", label=f"{scene} {partition}")
+            if partition == "balanced":
+                K = rows[0]["K"]
+                axes[0].plot(P, [speedup_bounds(K, p)["balanced"] for p in P], ":", color="gray")
+    axes[0].set(xscale="log", yscale="log", xlabel="workers P", ylabel="predicted speedup",
+                title="scheduler simulation (dotted: K(1-(1-1/K)^P))")
+    axes[1].set(xscale="log", xlabel="workers P", ylabel="efficiency (speedup / P)")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, path: Path) -> None:
+    """Serial | before recovery | after recovery at the first segment boundary."""
+    from tryon.drape.outputs import CLOTH, SKIN
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
+
+    seg = next(s for s in result.segments if s.x_upsampled is not None)
+    t = seg.start * scene.dt
+    body = scene.model.obstacles.vertices_at(t)
+    faces = scene.model.faces.numpy()
+    shapes = [states[seg.start], seg.x_upsampled, seg.x_start]
+    cam = Camera.fit([np.concatenate([shapes[0], body[body[:, 2] > shapes[0][:, 2].min() - 0.1]])], "three_quarter",
+                     aspect=0.75, margin=1.1)
+    images = [render_meshes([RenderMesh(body, scene.model.obstacles.faces, color=SKIN, two_sided=False),
+                             RenderMesh(x, faces, color=CLOTH)], 360, 480, camera=cam) for x in shapes]
+    save_png(path, np.concatenate(images, axis=1))
+
+
+def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] | None = None) -> list[dict]:
+    """Run the benchmark, print a table and write the records (and two PNGs) next to json_path."""
+    from tryon.parallel.executors import connect_ray
+
+    workers = sorted(set(workers or [1, 2]))
+    if workers[0] < 1:
+        from tryon.errors import TryonError
+
+        raise TryonError(f"--workers must be at least 1, got {workers[0]}")
+    json_path = Path(json_path)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    started = connect_ray(None, max(workers))
+    records, predictions = [], []
+    try:
+        for scene in bench_scenes(quick):
+            hier = build_hierarchy(scene)
+            states, fine_costs = serial_run(scene)
+            serial_s = float(fine_costs.sum())
+            coarse = coarse_costs(hier)
+            last = None
+            for p in workers:
+                for partition in (["adaptive", "uniform", "balanced"] if p == max(workers) and p > 1 else ["adaptive"]):
+                    rec, res = parallel_record(scene, hier, states, serial_s, p, partition)
+                    records.append(rec)
+                    last = res if p > 1 and partition == "uniform" else last
+                    _print(rec)
+            recov = [b["recovery_s"] for r in records if r["scene"] == scene.name for b in r["boundaries"]]
+            predictions += scheduler_predictions(fine_costs, coarse, _mean(recov) or 0.0, scene.name)
+            if scene.spec and "animation" in scene.spec and last is not None:
+                render_boundary(scene, hier, last, states, json_path.with_name(json_path.stem + "-boundary.png"))
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
+    plot_scheduler(predictions, json_path.with_name(json_path.stem + "-scheduler.png"))
+    for r in predictions:
+        if r["partition"] == "balanced":
+            print(f"  predicted {r['scene']:<22} P={r['workers']:<4} speedup {r['predicted_speedup']:7.1f}  "
+                  f"efficiency {r['efficiency']:.2f}")
+    payload = {"records": records, "scheduler": predictions, "cpu_count": os.cpu_count(),
+               "note": "speedups measured on this machine are limited by its CPU cores (shared with other work)"}
+    with atomic_write(json_path) as fh:
+        json.dump(payload, fh, indent=2, default=float)
+    return records
+
+
+def _print(r: dict) -> None:
+    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    print(f"{r['scene']:<22} P={r['workers']} {r['partition']:<9} K={fmt(r['K'])} serial {r['serial_s']:.1f} s "
+          f"parallel {r['parallel_s']:.1f} s speedup {fmt(r['speedup'])} (bounds {fmt(r['bound_uniform'])} / "
+          f"{fmt(r['bound_balanced'])}) curvature error {fmt(r['curvature_error_before'])} -> "
+          f"{fmt(r['curvature_error_after'])}")

@@ -1,0 +1,284 @@
+"""Where fine segments run: Ray tasks (a local Ray started with `workers` CPUs, or a
+cluster joined with `address`) or, for tests and debugging, this process.
+
+Both executors take the same `SegmentSpec`s and hand back `SegmentResult`s as segments
+finish (streaming); both report per-step `Progress`, from which the driver measures the
+fine cost per step (for the adaptive partition) and its progress bar. A Ray worker that
+dies mid-segment (killed, out of memory, node lost) has its task re-run by Ray; if Ray
+gives up, the executor submits the segment again, up to `max_attempts` times in all.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from tryon.errors import SimulationError, TryonError
+from tryon.parallel.hierarchy import Hierarchy
+from tryon.parallel.segment import Progress, SegmentResult, SegmentSpec, segment_run
+
+RAY_ENV = {"RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
+
+
+@dataclass
+class ProgressTable:
+    """Latest progress of every segment plus the fine step costs measured so far."""
+
+    latest: dict[int, Progress] = field(default_factory=dict)
+    attempts: dict[int, int] = field(default_factory=dict)
+    fine_seconds: float = 0.0
+    fine_steps: int = 0
+    listener: Callable[[Progress], None] | None = None
+
+    def add(self, p: Progress) -> None:
+        if p.phase == "start":
+            self.attempts[p.index] = self.attempts.get(p.index, 0) + 1
+        else:
+            self.fine_seconds += p.seconds
+            self.fine_steps += 1
+        self.latest[p.index] = p
+        if self.listener is not None:
+            self.listener(p)
+
+    def fine_cost(self) -> float | None:
+        return self.fine_seconds / self.fine_steps if self.fine_steps else None
+
+
+class LocalExecutor:
+    """Runs segments in this process, interleaved one fine step at a time with the
+    driver's coarse steps (cooperative generators: same results as the Ray path, no
+    concurrency)."""
+
+    mode = "local"
+
+    def __init__(self, hier: Hierarchy):
+        self.hier = hier
+        self.table = ProgressTable()
+        self._running: dict[int, list] = {}  # index -> [generator, last progress, end]
+
+    def submit(self, spec: SegmentSpec) -> None:
+        gen = segment_run(self.hier, spec)
+        first = next(gen)
+        self.table.add(first)
+        self._running[spec.index] = [gen, first, spec.end]
+
+    def set_end(self, index: int, end: int) -> None:
+        if index in self._running:
+            self._running[index][2] = end
+
+    def poll(self, limit: int, timeout: float = 0.0) -> list[SegmentResult]:
+        """Advance every running segment by one fine step (an open-ended one only while it
+        is behind the coarse run at `limit`); return the segments that finished."""
+        done = []
+        for index, entry in list(self._running.items()):
+            gen, last, end = entry
+            if end is None and last.step >= limit:
+                continue
+            try:
+                entry[1] = gen.send(end)
+                self.table.add(entry[1])
+            except StopIteration as stop:
+                done.append(stop.value)
+                del self._running[index]
+        return done
+
+    def close(self) -> None:
+        self._running.clear()
+
+
+# ---------------------------------------------------------------------------- Ray
+
+def ray_environment() -> None:
+    """Environment a local Ray 2.60 needs here: no usage stats, no token auth."""
+    for key, value in RAY_ENV.items():
+        os.environ.setdefault(key, value)
+
+
+def check_address(address: str, timeout: float = 3.0) -> None:
+    """Fail fast (a TryonError) when nothing listens at a Ray address `host:port`
+    (optionally `ray://host:port`); 'auto' and 'local' are left to Ray."""
+    if address in ("auto", "local"):
+        return
+    host, _, port = address.split("://")[-1].rpartition(":")
+    if not host or not port.isdigit():
+        raise TryonError(f"--ray-address {address!r} is not host:port (e.g. 192.168.1.10:6379 or ray://head:10001)")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise TryonError(f"no Ray cluster answers at {address!r} ({exc.strerror or exc}); start one with `ray start "
+                         "--head` there or run without --ray-address for a local Ray") from exc
+
+
+def connect_ray(address: str | None, workers: int, object_store_mb: int = 256) -> bool:
+    """Join the Ray at `address`, reuse an initialised one, or start a local Ray with
+    `workers` CPUs and a small object store. True when this call started it."""
+    ray_environment()
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if address:
+        check_address(address)
+    try:
+        if address:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, object_store_memory=object_store_mb * 1024 * 1024, include_dashboard=False,
+                     log_to_driver=False)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = f"the Ray cluster at {address!r}" if address else "a local Ray"
+        raise TryonError(f"could not start or join {where} ({exc}); check --ray-address or run without it") from exc
+    return True
+
+
+class _Board:
+    """Ray actor the segments report to and read their (late-decided) end from."""
+
+    def __init__(self) -> None:
+        self.ends: dict[int, int] = {}
+        self.limit = 0
+        self.reports: list[Progress] = []
+
+    def set_end(self, index: int, end: int) -> None:
+        self.ends[index] = end
+
+    def set_limit(self, limit: int) -> None:
+        self.limit = max(self.limit, limit)
+
+    def end_of(self, index: int) -> tuple[int | None, int]:
+        return self.ends.get(index), self.limit
+
+    def report(self, p: Progress) -> None:
+        self.reports.append(p)
+
+    def drain(self) -> list[Progress]:
+        out, self.reports = self.reports, []
+        return out
+
+
+def _segment_task(hier: Hierarchy, spec: SegmentSpec, board) -> SegmentResult:
+    """Body of the Ray task: drive `segment_run`, reporting progress, polling for the end."""
+    import ray
+    import torch
+
+    torch.set_num_threads(1)
+    gen = segment_run(hier, spec)
+    progress = next(gen)
+    end = spec.end
+    while True:
+        board.report.remote(progress)
+        if end is None:
+            end = _wait_for_end(ray, board, spec.index, progress.step)
+        try:
+            progress = gen.send(end)
+        except StopIteration as stop:
+            return stop.value
+
+
+def _wait_for_end(ray, board, index: int, step: int) -> int | None:
+    """The segment's end once decided; None while it may still step (behind the coarse run)."""
+    while True:
+        end, limit = ray.get(board.end_of.remote(index))
+        if end is not None or step < limit:
+            return end
+        time.sleep(0.02)
+
+
+class RayExecutor:
+    """Fine segments as Ray tasks (one CPU each); results stream back as they finish."""
+
+    mode = "ray"
+
+    def __init__(self, hier: Hierarchy, workers: int, address: str | None = None, max_attempts: int = 3,
+                 object_store_mb: int = 256, task_retries: int = 2):
+        import ray
+
+        self._ray = ray
+        self.started_ray = connect_ray(address, workers, object_store_mb)
+        self.table = ProgressTable()
+        self.max_attempts = max_attempts
+        self.resubmitted = 0
+        self._hier_ref = ray.put(hier)
+        self._board = ray.remote(num_cpus=0)(_Board).remote()
+        self._task = ray.remote(num_cpus=1, max_retries=task_retries)(_segment_task)
+        self._pending: dict = {}  # ObjectRef -> (spec, submissions)
+        self._ends: dict[int, int] = {}
+        self._limit = -1
+
+    def warm_up(self, workers: int) -> float:
+        """Start the worker processes and load the simulator there (imports, compiled
+        kernels, one fine step); returns the seconds it took (reported apart from the run)."""
+        tic = time.perf_counter()
+        warm = self._ray.remote(num_cpus=1)(_warm_worker)
+        self._ray.get([warm.remote(self._hier_ref) for _ in range(workers)])
+        return time.perf_counter() - tic
+
+    def submit(self, spec: SegmentSpec, submissions: int = 1) -> None:
+        ref = self._task.remote(self._hier_ref, spec, self._board)
+        self._pending[ref] = (spec, submissions)
+
+    def set_end(self, index: int, end: int) -> None:
+        self._ends[index] = end
+        self._board.set_end.remote(index, end)
+
+    def poll(self, limit: int, timeout: float = 0.0) -> list[SegmentResult]:
+        ray = self._ray
+        if limit != self._limit:
+            self._board.set_limit.remote(limit)
+            self._limit = limit
+        done = []
+        if self._pending:
+            ready, _ = ray.wait(list(self._pending), num_returns=len(self._pending), timeout=timeout)
+            for ref in ready:
+                done.extend(self._collect(ref))
+        for p in ray.get(self._board.drain.remote()):
+            self.table.add(p)
+        return done
+
+    def _collect(self, ref) -> list[SegmentResult]:
+        ray = self._ray
+        spec, submissions = self._pending.pop(ref)
+        try:
+            return [ray.get(ref)]
+        except ray.exceptions.RayTaskError as exc:
+            cause = getattr(exc, "cause", None)
+            if isinstance(cause, TryonError):
+                raise cause
+            raise SimulationError(f"fine segment {spec.index} failed: {exc}") from exc
+        except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.ObjectLostError,
+                ray.exceptions.RaySystemError) as exc:
+            if submissions >= self.max_attempts:
+                raise SimulationError(f"fine segment {spec.index} was lost {submissions} times ({type(exc).__name__}); "
+                                      "check the Ray workers' memory and logs") from exc
+            if spec.end is None and spec.index in self._ends:
+                spec.end = self._ends[spec.index]
+            self.resubmitted += 1
+            self.submit(spec, submissions + 1)
+            return []
+
+    def close(self) -> None:
+        ray = self._ray
+        for ref in list(self._pending):
+            ray.cancel(ref, force=True)
+        self._pending.clear()
+        try:
+            ray.kill(self._board)
+        except Exception:  # the actor may already be gone with its node
+            pass
+        if self.started_ray:
+            ray.shutdown()
+
+
+def _warm_worker(hier: Hierarchy) -> int:
+    """Warm-up task: load the simulator's kernels in a worker with one fine step; its pid."""
+    import torch
+
+    from tryon.sim.integrator import ImplicitEulerSolver
+
+    torch.set_num_threads(1)
+    fine = hier.fine
+    ImplicitEulerSolver(fine.model, fine.options).step(fine.model.initial_state(), fine.dt)
+    return os.getpid()

@@ -1,0 +1,393 @@
+"""Two-level cloth hierarchy for time-domain parallel simulation (Liang & Lin, SCA 2018, Sec. 3).
+
+The fine level is the cloth whose frames a run returns; the coarse level is the same
+cloth at a lower resolution, related by a sparse upsampling operator ``u(X) = U X``
+([N_fine, N_coarse], acting on positions and velocities alike). Two ways to build them:
+
+* coarsen (default for grids and garment animations): the scene's own cloth is the fine
+  level and the coarse one a coarser triangulation of the same pattern (a grid at a
+  lower resolution, or the garment's sewing pattern at a larger edge length, seams
+  welded); ``U`` is the barycentric embedding of each fine vertex's material coordinates
+  in the coarse triangle of its pattern piece. The output has the serial run's format.
+* subdivide (any mesh): the scene's cloth is the coarse level and the fine one its
+  midpoint subdivision (1 -> 4 triangles), with the exact linear upsampling.
+
+The mass-weighted left inverse ``R = (U^T M U)^-1 U^T M`` of ``U`` (M the fine lumped
+masses) is the restriction that measures the fine mesh's coarse-scale motion; ``R U = I``,
+and the mass-weighted closest fine state whose coarse-scale part equals a target ``X`` is
+``x + U (X - R x)`` (the TRACKS-style tracking projection used in detail recovery).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import torch
+from scipy.spatial import cKDTree
+
+from tryon.errors import SceneError
+from tryon.sim.mesh import ClothMesh
+from tryon.sim.model import ClothModel, PinGroup
+from tryon.sim.scene import Scene, parse_scene
+
+
+# ---------------------------------------------------------------------------- subdivision
+
+def edge_index(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique undirected edges [E,2] and, per face, the edge index of its sides
+    (v0,v1), (v1,v2), (v2,v0) as [F,3]."""
+    sides = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], 1).reshape(-1, 2)
+    edges, inverse = np.unique(np.sort(sides, 1), axis=0, return_inverse=True)
+    return edges, inverse.reshape(-1, 3)
+
+
+def subdivide_mesh(mesh: ClothMesh) -> tuple[ClothMesh, sp.csr_matrix]:
+    """Midpoint (1 -> 4) subdivision of a cloth mesh and its upsampling operator U.
+
+    Fine vertex i < N is coarse vertex i; fine vertex N + e is the midpoint of coarse edge
+    e. Face (a, b, c) with side midpoints (ab, bc, ca) becomes (a, ab, ca), (ab, b, bc),
+    (ca, bc, c), (ab, bc, ca), which keeps the orientation. Vertex and per-corner material
+    coordinates of the midpoints are the means of their edge's ends, so the fine rest shape
+    is exactly the coarse one refined (a welded seam keeps each panel's own coordinates)."""
+    faces = mesh.faces.numpy()
+    n = mesh.num_vertices
+    edges, side = edge_index(faces)
+    ne = len(edges)
+    mid = n + side  # [F,3] midpoint vertex of sides (ab, bc, ca)
+    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
+    ab, bc, ca = mid[:, 0], mid[:, 1], mid[:, 2]
+    fine_faces = np.concatenate([
+        np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1),
+    ])
+    rows = np.concatenate([np.arange(n), np.repeat(np.arange(n, n + ne), 2)])
+    cols = np.concatenate([np.arange(n), edges.reshape(-1)])
+    vals = np.concatenate([np.ones(n), np.full(2 * ne, 0.5)])
+    U = sp.csr_matrix((vals, (rows, cols)), shape=(n + ne, n))
+    x = U @ mesh.x.numpy()
+    uv = U @ mesh.uv.numpy()
+    face_uv = None
+    if mesh.face_uv is not None:
+        cu = mesh.face_uv.numpy()
+        m_ab, m_bc, m_ca = 0.5 * (cu[:, 0] + cu[:, 1]), 0.5 * (cu[:, 1] + cu[:, 2]), 0.5 * (cu[:, 2] + cu[:, 0])
+        face_uv = np.concatenate([
+            np.stack([cu[:, 0], m_ab, m_ca], 1), np.stack([m_ab, cu[:, 1], m_bc], 1),
+            np.stack([m_ca, m_bc, cu[:, 2]], 1), np.stack([m_ab, m_bc, m_ca], 1),
+        ])
+    fine = ClothMesh(torch.from_numpy(x), torch.from_numpy(uv), torch.from_numpy(fine_faces.astype(np.int64)),
+                     name=f"{mesh.name}-fine", face_uv=None if face_uv is None else torch.from_numpy(face_uv))
+    return fine, U
+
+
+def subdivide_stitches(stitches: np.ndarray, coarse_edges: np.ndarray, num_coarse: int) -> np.ndarray:
+    """Stitches of a subdivided mesh: the coarse pairs plus, for every pair of coarse edges
+    (a, c) and (b, d) whose ends are stitched a-b and c-d, their midpoints."""
+    if len(stitches) == 0:
+        return stitches.reshape(0, 2)
+    key = coarse_edges[:, 0] * num_coarse + coarse_edges[:, 1]
+    partner = np.full(num_coarse, -1)
+    partner[stitches[:, 0]] = stitches[:, 1]
+    partner[stitches[:, 1]] = stitches[:, 0]
+    pa, pc = partner[coarse_edges[:, 0]], partner[coarse_edges[:, 1]]
+    ok = (pa >= 0) & (pc >= 0)
+    lo, hi = np.minimum(pa, pc), np.maximum(pa, pc)
+    other_key = lo * num_coarse + hi
+    order = np.argsort(key)
+    pos = np.searchsorted(key[order], other_key)
+    pos = np.clip(pos, 0, len(key) - 1)
+    hit = ok & (key[order][pos] == other_key)
+    e1 = np.nonzero(hit)[0]
+    e2 = order[pos[hit]]
+    keep = e1 < e2  # each pair once
+    extra = np.stack([num_coarse + e1[keep], num_coarse + e2[keep]], 1)
+    return np.concatenate([stitches, extra]).astype(np.int64)
+
+
+# ---------------------------------------------------------------------------- embedding
+
+def locate_in_triangles(points: np.ndarray, point_panel: np.ndarray, tri_uv: np.ndarray, tri_panel: np.ndarray,
+                        tri_vertices: np.ndarray, num_columns: int, candidates: int = 8,
+                        max_outside: float = 0.5) -> sp.csr_matrix:
+    """Barycentric embedding of material points in a triangulation of the same pattern:
+    row i of the returned [M, num_columns] matrix holds the barycentric weights of point i
+    (material coordinates `points[i]`, pattern piece `point_panel[i]`) in the triangle of
+    its piece that contains it, on that triangle's vertices `tri_vertices` [F,3]. A point
+    marginally outside every triangle (a curved outline discretised coarser) takes the
+    nearest one with clamped weights; one further outside than `max_outside` (in units of
+    barycentric coordinates) means the two triangulations are not of the same pattern."""
+    rows, cols, vals = [], [], []
+    for panel in np.unique(point_panel):
+        sel = np.nonzero(point_panel == panel)[0]
+        tris = np.nonzero(tri_panel == panel)[0]
+        if len(tris) == 0:
+            raise SceneError(f"pattern piece {int(panel)} has points but no triangles on the other level")
+        tri = tri_uv[tris]
+        k = min(candidates, len(tris))
+        _, cand = cKDTree(tri.mean(1)).query(points[sel], k=k)
+        cand = cand.reshape(len(sel), k)
+        bary = _barycentric(tri[cand], points[sel][:, None, :])  # [M,k,3]
+        outside = np.maximum(-bary, 0.0).sum(-1)
+        best = np.argmin(outside, 1)
+        r = np.arange(len(sel))
+        if outside[r, best].max() > max_outside:
+            i = int(sel[np.argmax(outside[r, best])])
+            raise SceneError(f"material point {i} ({points[i].round(4).tolist()}) lies outside the other level's "
+                             "pattern; the two levels must triangulate the same pattern")
+        w = np.clip(bary[r, best], 0.0, None)
+        w /= w.sum(1, keepdims=True)
+        rows.append(np.repeat(sel, 3))
+        cols.append(tri_vertices[tris[cand[r, best]]].ravel())
+        vals.append(w.ravel())
+    U = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(len(points), num_columns))
+    U.eliminate_zeros()
+    return U
+
+
+def vertex_corners(faces: np.ndarray, num_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """One (face, corner) per vertex: where each vertex's material coordinates are read."""
+    flat = faces.reshape(-1)
+    first = np.full(num_vertices, -1)
+    order = np.arange(len(flat))[::-1]
+    first[flat[order]] = order  # the last write wins: the first occurrence
+    if (first < 0).any():
+        raise SceneError(f"vertex {int(np.nonzero(first < 0)[0][0])} belongs to no face")
+    return first // 3, first % 3
+
+
+def embedding_operator(coarse: ClothMesh, fine: ClothMesh, coarse_panel: np.ndarray | None = None,
+                       fine_panel: np.ndarray | None = None) -> sp.csr_matrix:
+    """Barycentric upsampling U [N_fine, N_coarse] between two triangulations of the same
+    pattern: each fine vertex is located, by its material coordinates (per face corner
+    for garments, with `*_panel` the pattern piece of every face), in a coarse triangle."""
+    cf, ff = coarse.faces.numpy(), fine.faces.numpy()
+    coarse_panel = np.zeros(len(cf), np.int64) if coarse_panel is None else np.asarray(coarse_panel)
+    fine_panel = np.zeros(len(ff), np.int64) if fine_panel is None else np.asarray(fine_panel)
+    face, corner = vertex_corners(ff, fine.num_vertices)
+    points = fine.corner_uv().numpy()[face, corner]
+    return locate_in_triangles(points, fine_panel[face], coarse.corner_uv().numpy(), coarse_panel, cf,
+                               coarse.num_vertices)
+
+
+def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
+    a, b, c = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
+    v0, v1, v2 = b - a, c - a, p - a
+    det = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
+    l1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / det
+    l2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / det
+    return np.stack([1 - l1 - l2, l1, l2], -1)
+
+
+# ---------------------------------------------------------------------------- levels
+
+@dataclass
+class Hierarchy:
+    """A coarse and a fine scene of the same cloth with the upsampling operator between
+    them. `coarse_dt` may be a whole multiple `dt_ratio` of the fine dt."""
+
+    coarse: Scene
+    fine: Scene
+    U: sp.csr_matrix
+    kind: str
+    dt_ratio: int = 1
+    _restrict: object | None = field(default=None, repr=False, compare=False)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_restrict"] = None  # SuperLU factors do not pickle; rebuilt on first use
+        return state
+
+    @property
+    def fine_mass(self) -> np.ndarray:
+        """Lumped vertex masses of the fine level (kg), the metric of the restriction."""
+        return self.fine.model.mass().detach().numpy()
+
+    def upsample(self, X: np.ndarray) -> np.ndarray:
+        """u(X) = U X for coarse positions or velocities [N_c,3] -> [N_f,3]."""
+        return np.asarray(self.U @ X)
+
+    def restrict(self, x: np.ndarray) -> np.ndarray:
+        """R x = (U^T M U)^-1 U^T M x: the coarse-scale part of fine positions/velocities."""
+        mass = self.fine_mass
+        if self._restrict is None:
+            self._restrict = spla.splu((self.U.T @ sp.diags(mass) @ self.U).tocsc())
+        rhs = self.U.T @ (mass[:, None] * x)
+        return self._restrict.solve(np.ascontiguousarray(rhs))
+
+    def track(self, x: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Tracking projection x + U (target - R x): the mass-weighted closest fine state
+        whose coarse-scale part is `target` (TRACKS, Bergou et al. 2007, constraint R x = X)."""
+        return x + self.upsample(target - self.restrict(x))
+
+    def fingerprint(self) -> str:
+        """Hash of both levels' geometry, time steps and durations (checkpoints match it)."""
+        h = hashlib.sha1()
+        for sc in (self.coarse, self.fine):
+            m = sc.model
+            for arr in (m.mesh.x.numpy(), m.faces.numpy(), m.mesh.corner_uv().numpy(), m.pinned.numpy()):
+                h.update(np.ascontiguousarray(arr).tobytes())
+            h.update(repr((sc.dt, sc.duration, sc.frame_time, m.fabric.name, m.obstacles.num_vertices)).encode())
+        h.update(repr((self.kind, self.dt_ratio)).encode())
+        return h.hexdigest()[:16]
+
+
+def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: list[PinGroup] | None = None) -> ClothModel:
+    """`model`'s fabric, pins, forces, obstacles and contact settings on another mesh of the
+    same cloth (pins keep their vertex indices unless given: with subdivision, coarse vertex
+    i is fine vertex i)."""
+    if pins is None:
+        pins = [PinGroup(p.vertices.clone(), p.motion) for p in model.pins]
+    return ClothModel(
+        mesh, model.fabric, pins=pins, gravity=tuple(model.gravity.tolist()), wind=model.wind,
+        obstacles=list(model.obstacles.obstacles), collision=copy.copy(model.collision), damping=model.damping,
+        stitches=torch.from_numpy(np.asarray(stitches, np.int64).reshape(-1, 2)), stitch_stiffness=model.stitch_stiffness,
+        air_damping=model.air_damping,
+    )
+
+
+def _with_dt(scene: Scene, model: ClothModel, dt: float, name: str) -> Scene:
+    return Scene(name=name, model=model, dt=dt, duration=scene.duration, frame_time=scene.frame_time,
+                 options=copy.copy(scene.options), description=scene.description, spec=scene.spec)
+
+
+LEVELS = ("auto", "coarsen", "subdivide")
+
+
+GRID_FACTOR, GARMENT_FACTOR = 2.0, 1.5  # a coarser garment's chords would cut deep into the body
+
+
+def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = None, dt_ratio: int = 1) -> Hierarchy:
+    """Two levels of a scene's cloth.
+
+    `level="coarsen"`: the scene's cloth is the fine level (the output has the serial run's
+    format) and the coarse level triangulates the same pattern `factor` times coarser: a
+    grid at 1/factor of the resolution, or a garment animation's sewing pattern at factor
+    times the drape's edge length. `level="subdivide"`: the scene's cloth is the coarse
+    level and the fine one its midpoint subdivision (exact linear upsampling; any mesh).
+    `"auto"` coarsens when it can and subdivides otherwise. `factor` defaults to 2 for
+    grids and 1.5 for garments. The fine level runs at the scene's dt, the coarse one at
+    `dt_ratio` times it."""
+    if dt_ratio < 1 or int(dt_ratio) != dt_ratio:
+        raise SceneError(f"the coarse time step must be a whole multiple of the fine one, got ratio {dt_ratio}")
+    if level not in LEVELS:
+        raise SceneError(f"unknown hierarchy level {level!r}; use one of {', '.join(LEVELS)}")
+    spec = scene.spec or {}
+    garment = "animation" in spec
+    grid = "grid" in (spec.get("cloth") or {})
+    if level == "auto":
+        level = "coarsen" if garment or grid else "subdivide"
+    if level == "subdivide":
+        fine_model, U = _subdivided(scene.model)
+        fine_scene = _with_dt(scene, fine_model, scene.dt, scene.name)
+        coarse_scene = _with_dt(scene, scene.model, scene.dt * dt_ratio, f"{scene.name}-coarse")
+        return Hierarchy(coarse_scene, fine_scene, U, "subdivide", int(dt_ratio))
+    factor = float(factor if factor is not None else GARMENT_FACTOR if garment else GRID_FACTOR)
+    if not factor > 1.0:
+        raise SceneError(f"the coarsening factor must be larger than 1, got {factor}")
+    if garment:
+        coarse_model, U = _coarser_garment(scene, factor)
+    elif grid:
+        coarse_model, U = _coarser_grid(scene, factor)
+    else:
+        raise SceneError(f"scene {scene.name}: only grid cloths and garment animations can be coarsened; "
+                         "use the 'subdivide' hierarchy (the scene's cloth as the coarse level)")
+    coarse_scene = _with_dt(scene, coarse_model, scene.dt * dt_ratio, f"{scene.name}-coarse")
+    return Hierarchy(coarse_scene, scene, U, f"coarsen:{factor:g}", int(dt_ratio))
+
+
+def _subdivided(model: ClothModel) -> tuple[ClothModel, sp.csr_matrix]:
+    edges = model.mesh.edges.numpy()
+    mesh, U = subdivide_mesh(model.mesh)
+    stitches = subdivide_stitches(model.stitches.numpy(), edges, model.num_vertices)
+    return _model_on(model, mesh, stitches), U
+
+
+def _coarser_grid(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_matrix]:
+    spec = scene.spec
+    grid = spec["cloth"]["grid"] or {}
+    res = grid.get("resolution", [32, 32])
+    res = [res, res] if isinstance(res, int) else [int(r) for r in res]
+    coarse_res = [max(3, int(round((r - 1) / factor)) + 1) for r in res]
+    if coarse_res == res:
+        raise SceneError(f"a {res[0]}x{res[1]} grid is too small to coarsen by {factor}; use a finer grid or 'subdivide'")
+    pins = spec["cloth"].get("pins") or []
+    if not all(isinstance(v, str) for v in pins):
+        raise SceneError("a coarsened grid maps pins by corner name only; use the 'subdivide' hierarchy for pins by index")
+    for h in spec["cloth"].get("handles") or []:
+        if not all(isinstance(v, str) for v in h.get("vertices", [])):
+            raise SceneError("a coarsened grid maps handles by corner name only; use the 'subdivide' hierarchy")
+    coarse_spec = copy.deepcopy(spec)
+    coarse_spec["cloth"]["grid"]["resolution"] = coarse_res
+    coarse = parse_scene(coarse_spec, default_name=scene.name).model
+    model = _model_on(scene.model, coarse.mesh, np.zeros((0, 2), np.int64), pins=coarse.pins)
+    return model, embedding_operator(model.mesh, scene.model.mesh)
+
+
+def _coarser_garment(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_matrix]:
+    """The coarse level of a garment animation (`tryon.drape.animate.animation_scene`):
+    its drape's sewing pattern at `factor` times the drape's edge length."""
+    from tryon.drape.animate import load_drape
+    from tryon.garment.pattern import Pattern
+
+    if len(scene.model.stitches) or len(scene.model.pins):
+        raise SceneError("a coarsened garment cannot carry open stitches or pins; use the 'subdivide' hierarchy")
+    drape = scene.spec["animation"]["drape"]
+    state = load_drape(drape)
+    fine_mesh = scene.model.mesh
+    if state["faces"].shape != tuple(fine_mesh.faces.shape) or not np.array_equal(state["faces"], fine_mesh.faces.numpy()):
+        raise SceneError(f"scene {scene.name}: its garment is not the one stored in {drape}")
+    fine_panel = np.asarray(state["face_panel"])
+    mesh, coarse_panel = coarsen_garment(fine_mesh, fine_panel, Pattern.from_dict(state["pattern"]),
+                                         float(state["request"]["edge_length"]) * factor)
+    mesh = _clear_of_obstacles(mesh, scene.model)
+    model = _model_on(scene.model, mesh, np.zeros((0, 2), np.int64), pins=[])
+    return model, embedding_operator(mesh, fine_mesh, coarse_panel, fine_panel)
+
+
+def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1.5, 2, 3, 4, 6, 8, 12)) -> ClothMesh:
+    """The coarse garment's vertices lie on the fine one, but its longer edges are chords
+    that cut into a curved body. Vertices nearer the obstacles than a gap (from the contact
+    thickness up) move out along the obstacle normal, with the smallest gap that leaves no
+    cloth-obstacle intersection."""
+    from tryon.sim import collision as col
+
+    ob = model.obstacles.vertices_at(0.0)
+    if len(ob) == 0:
+        return mesh
+    x0 = mesh.x.numpy()
+    faces, edges = mesh.faces.numpy(), mesh.edges.numpy()
+    d, q, n = col.nearest_surface_points(np.ascontiguousarray(x0), ob, model.obstacles.faces)
+    h = model.collision.thickness
+    for k in steps:
+        gap = k * h
+        x = np.where((d < gap)[:, None], q + gap * n, x0)
+        _, crossing = col.count_intersections(x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges,
+                                              self_collision=False)
+        if crossing == 0:
+            return ClothMesh(torch.from_numpy(x), mesh.uv, mesh.faces, mesh.name, face_uv=mesh.face_uv)
+    raise SceneError(f"the coarse garment still cuts into the obstacles {steps[-1] * h * 100:.1f} cm off them; "
+                     "use a smaller coarsening factor")
+
+
+def coarsen_garment(fine: ClothMesh, fine_panel: np.ndarray, pattern, edge_length: float) -> tuple[ClothMesh, np.ndarray]:
+    """A garment mesh triangulated from `pattern` at `edge_length`, seams welded, each
+    vertex placed on the (draped) `fine` garment at its material point. Returns the mesh
+    and the pattern piece of each of its faces (`fine_panel` is that of the fine faces)."""
+    from tryon.garment.triangulate import merge_stitched, triangulate_pattern
+
+    gm = triangulate_pattern(pattern, edge_length)
+    _, faces, corner_uv, group = merge_stitched(gm, np.zeros((gm.num_vertices, 3)))
+    n = int(group.max()) + 1
+    coarse_panel = gm.panel_of_vertex[gm.faces[:, 0]]
+    face, corner = vertex_corners(faces, n)
+    uv = corner_uv[face, corner]
+    E = locate_in_triangles(uv, coarse_panel[face], fine.corner_uv().numpy(), np.asarray(fine_panel),
+                            fine.faces.numpy(), fine.num_vertices)
+    x = E @ fine.x.numpy()
+    mesh = ClothMesh(torch.from_numpy(x), torch.from_numpy(uv), torch.from_numpy(faces.astype(np.int64)),
+                     name=f"{fine.name}-coarse", face_uv=torch.from_numpy(corner_uv))
+    return mesh, coarse_panel

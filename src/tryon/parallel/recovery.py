@@ -1,0 +1,200 @@
+"""Detail recovery at a segment start (Liang & Lin, SCA 2018, Algorithm 3).
+
+The coarse run gives the cloth's state at the segment start t_s only at coarse
+resolution; its upsampling u(X_c) is smooth, and starting the fine segment from it would
+"pop" (wrinkles vanish and re-form). Recovery lets the fine dynamics grow the detail while
+the coarse-scale shape stays on the coarse trajectory. Starting from x = u(X_c(t_s)),
+v = u(V_c(t_s)), it alternates
+
+1. one fine step of dt from t_s with tracking constraints R x = X_c(t_s + dt) (TRACKS,
+   Bergou et al. 2007; enforced as the mass-weighted projection x + U (X_c - R x) on
+   positions and velocities, see `Hierarchy.track`), and
+2. subtracting the upsampled coarse change u(X_c(t_s + dt) - X_c(t_s)) (and likewise for
+   velocities), which takes the state back to t_s while keeping the fine detail,
+
+for at most n = ceil(c0 sqrt(m / xi) / dt) iterations (c0 = 10, m the areal density, xi
+the norm of the fabric's membrane stiffness at rest; sqrt(m / xi) is the time a membrane
+wave needs to cross a metre of cloth), or until the RMS vertex change of an iteration
+falls below `tolerance` times the cloth size. Vertices the upsampled shape or an
+iteration puts into an obstacle are pushed out (`push_outside`); the recovered state
+is made free of cloth-obstacle crossings (`clear_of_obstacles`) so that the fine
+segment's collision handling can start from it. Detail velocities are dropped
+(`keep_detail_velocity` = 0): the recovered state moves with the coarse velocity.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from tryon.errors import SimulationError, TryonError
+from tryon.fabric.base import Fabric
+from tryon.parallel.hierarchy import Hierarchy
+from tryon.sim.collision import count_intersections, nearest_surface_points
+from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.model import ClothState
+
+
+@dataclass
+class RecoveryOptions:
+    """`c0` scales the iteration limit; `tolerance` is the stopping change as a fraction of
+    the cloth size; `max_iterations` overrides the c0 limit; `enabled=False` starts fine
+    segments from the plain upsampled coarse state (for comparisons)."""
+
+    c0: float = 10.0
+    tolerance: float = 1e-3
+    max_iterations: int | None = None
+    enabled: bool = True
+    keep_detail_velocity: float = 0.0
+
+    def validate(self) -> None:
+        if self.c0 <= 0 or self.tolerance <= 0:
+            raise TryonError(f"detail recovery needs c0 > 0 and tolerance > 0, got c0={self.c0}, tolerance={self.tolerance}")
+        if self.max_iterations is not None and self.max_iterations < 0:
+            raise TryonError(f"detail recovery max_iterations must be >= 0, got {self.max_iterations}")
+
+
+@dataclass
+class RecoveryReport:
+    iterations: int = 0
+    limit: int = 0
+    converged: bool = False
+    changes: list[float] = field(default_factory=list)  # RMS vertex change per iteration (m)
+    seconds: float = 0.0
+    failed: str = ""
+
+
+def stiffness_norm(fabric: Fabric) -> float:
+    """xi: Euclidean norm (N/m) of the membrane stiffnesses (k0..k3) at zero strain."""
+    k = fabric.stretching_stiffness(torch.zeros(1, 3, dtype=torch.float64))
+    return float(torch.linalg.norm(k.detach().reshape(-1)))
+
+
+def iteration_limit(fabric: Fabric, dt: float, c0: float = 10.0) -> int:
+    """n = ceil(c0 sqrt(m / xi) / dt)."""
+    m = float(fabric.density)
+    xi = stiffness_norm(fabric)
+    if m <= 0 or xi <= 0:
+        raise TryonError(f"fabric {fabric.name}: detail recovery needs a positive density and stiffness")
+    return max(1, math.ceil(c0 * math.sqrt(m / xi) / dt))
+
+
+def coarse_edge_length(hier: Hierarchy) -> float:
+    """Mean edge length (m) of the coarse cloth at rest."""
+    mesh = hier.coarse.model.mesh
+    e = mesh.edges.numpy()
+    return float(np.linalg.norm(mesh.x.numpy()[e[:, 0]] - mesh.x.numpy()[e[:, 1]], axis=1).mean())
+
+
+GAPS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0)  # contact thicknesses tried until no cloth edge crosses an obstacle
+
+
+def push_outside(hier: Hierarchy, x: np.ndarray, t: float, gap: float | None = None) -> np.ndarray:
+    """Fine vertices that an upsampled coarse shape puts inside an obstacle or nearer than
+    `gap` (default: the contact thickness; a coarse triangle is a chord of a curved body)
+    moved out along the obstacle's normal to `gap`. Only points at most a coarse edge
+    length deep move (deeper ones are behind an open obstacle surface, not in it)."""
+    model = hier.fine.model
+    ob = model.obstacles.vertices_at(t)
+    if len(ob) == 0 or not model.collision.enabled:
+        return x
+    d, q, n = nearest_surface_points(np.ascontiguousarray(x), ob, model.obstacles.faces)
+    h = model.collision.thickness if gap is None else gap
+    bad = (d < h) & (d > -coarse_edge_length(hier))
+    if len(model.pinned):
+        bad[model.pinned.numpy()] = False
+    if bad.any():
+        x = x.copy()
+        x[bad] = q[bad] + h * n[bad]
+    return x
+
+
+def obstacle_crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
+    """Cloth edges through obstacle faces and obstacle edges through cloth faces at t."""
+    m = hier.fine.model
+    ob = m.obstacles.vertices_at(t)
+    if len(ob) == 0:
+        return 0
+    _, crossing = count_intersections(np.ascontiguousarray(x), m.faces.numpy(), m.edges.numpy(), ob, m.obstacles.faces,
+                                      m.obstacles.edges, self_collision=False)
+    return int(crossing)
+
+
+def clear_of_obstacles(hier: Hierarchy, x: np.ndarray, t: float) -> tuple[np.ndarray, float]:
+    """`push_outside` with the smallest gap (in contact thicknesses, `GAPS`) that leaves no
+    cloth-obstacle crossing, so that collision handling can start from the state."""
+    h = hier.fine.model.collision.thickness
+    for k in GAPS:
+        pushed = push_outside(hier, x, t, k * h)
+        if obstacle_crossings(hier, pushed, t) == 0:
+            return pushed, k * h
+    return pushed, GAPS[-1] * h
+
+
+def upsampled_state(hier: Hierarchy, xc: np.ndarray, vc: np.ndarray, t: float, push: bool = True) -> ClothState:
+    """u(X_c), u(V_c) with pinned vertices placed exactly on their handles and (with
+    `push`) vertices moved out of the obstacles (`clear_of_obstacles`)."""
+    x = hier.upsample(xc)
+    v = hier.upsample(vc)
+    model = hier.fine.model
+    if len(model.pinned):
+        x[model.pinned.numpy()] = model.pin_targets(t).numpy()
+    if push:
+        x, _ = clear_of_obstacles(hier, x, t)
+    return ClothState(torch.from_numpy(x), torch.from_numpy(v), t)
+
+
+def recover_details(
+    solver: ImplicitEulerSolver,
+    hier: Hierarchy,
+    coarse_start: tuple[np.ndarray, np.ndarray],
+    coarse_next: tuple[np.ndarray, np.ndarray],
+    t: float,
+    dt: float,
+    options: RecoveryOptions | None = None,
+) -> tuple[ClothState, RecoveryReport]:
+    """Algorithm 3: the fine state at time t from the coarse states at t and t + dt."""
+    options = options or RecoveryOptions()
+    options.validate()
+    model = hier.fine.model
+    xc0, vc0 = coarse_start
+    xc1, vc1 = coarse_next
+    state = upsampled_state(hier, xc0, vc0, t)
+    limit = options.max_iterations if options.max_iterations is not None else iteration_limit(model.fabric, dt, options.c0)
+    report = RecoveryReport(limit=limit)
+    if not options.enabled or limit == 0:
+        return state, report
+    tic = time.perf_counter()
+    dX, dV = hier.upsample(xc1 - xc0), hier.upsample(vc1 - vc0)
+    pinned = model.pinned.numpy()
+    tol = options.tolerance * model.mesh.size()
+    for _ in range(limit):
+        try:
+            stepped, _ = solver.step(state, dt)
+        except SimulationError as exc:
+            report.failed = str(exc)
+            break
+        x = hier.track(stepped.x.numpy(), xc1)
+        v = hier.track(stepped.v.numpy(), vc1)
+        if len(pinned):
+            x[pinned] = model.pin_targets(t + dt).numpy()
+        x, v = push_outside(hier, x - dX, t), v - dV
+        if options.keep_detail_velocity < 1.0:
+            v_coarse = hier.upsample(vc0)
+            v = v_coarse + options.keep_detail_velocity * (v - v_coarse)
+        change = float(np.sqrt(np.mean(np.sum((x - state.x.numpy()) ** 2, 1))))
+        state = ClothState(torch.from_numpy(x), torch.from_numpy(v), t)
+        report.iterations += 1
+        report.changes.append(change)
+        if change < tol:
+            report.converged = True
+            break
+    if obstacle_crossings(hier, state.x.numpy(), t):
+        x, _ = clear_of_obstacles(hier, state.x.numpy(), t)
+        state = ClothState(torch.from_numpy(x), state.v, t)
+    report.seconds = time.perf_counter() - tic
+    return state, report

@@ -1,0 +1,158 @@
+"""One fine segment of a time-parallel run: detail recovery at its start (unless it is the
+first segment, which starts from the scene's exact initial state), then fine steps to its
+end, keeping the frames a serial run would keep in that interval.
+
+`segment_run` is a generator so that the same code runs inside a Ray task and in the
+in-process executor: it yields a `Progress` after recovery and after every step, and the
+driver sends back the segment's end once it is known (adaptive partitions decide it
+while the segment already runs)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from collections.abc import Generator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tryon.errors import SimulationError
+from tryon.parallel.hierarchy import Hierarchy
+from tryon.parallel.recovery import RecoveryOptions, recover_details, upsampled_state
+from tryon.sim.integrator import ImplicitEulerSolver
+
+CoarsePair = tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass
+class SegmentSpec:
+    """Segment `index` covers fine steps start..end (end None: decided later). `coarse`
+    holds the coarse (x, v) at the start and one fine step later (None for segment 0)."""
+
+    index: int
+    start: int
+    end: int | None
+    n_steps: int
+    steps_per_frame: int
+    coarse: CoarsePair | None = None
+    recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
+
+    def frame_steps(self, end: int) -> list[int]:
+        """Steps in (start, end] whose states a serial run keeps as frames."""
+        ks = np.arange(self.start + 1, end + 1)
+        keep = (ks % self.steps_per_frame == 0) | (ks == self.n_steps)
+        return [int(k) for k in ks[keep]]
+
+
+@dataclass
+class Progress:
+    index: int
+    step: int
+    seconds: float  # wall seconds of the last fine step (0 for the start report)
+    pid: int
+    host: str
+    phase: str = "step"  # "start" after recovery, then "step"
+
+
+@dataclass
+class SegmentResult:
+    index: int
+    start: int
+    end: int
+    frame_steps: list[int]
+    frames: np.ndarray  # [F, N, 3]
+    x_end: np.ndarray
+    v_end: np.ndarray
+    step_seconds: list[float]
+    recovery: dict
+    x_start: np.ndarray  # the state the segment started from (after recovery)
+    x_upsampled: np.ndarray | None  # u(X_coarse) at the start (None for segment 0)
+    pid: int = 0
+    host: str = ""
+    setup_seconds: float = 0.0
+    retried_steps: int = 0
+    fail_safe_used: bool = False
+
+    def to_arrays(self) -> dict:
+        """Flat arrays for an npz checkpoint (see `from_arrays`)."""
+        meta = np.array([self.index, self.start, self.end, self.pid, self.retried_steps, int(self.fail_safe_used)])
+        out = {"meta": meta, "frame_steps": np.asarray(self.frame_steps, np.int64), "frames": self.frames,
+               "x_end": self.x_end, "v_end": self.v_end, "step_seconds": np.asarray(self.step_seconds),
+               "x_start": self.x_start, "setup_seconds": np.array(self.setup_seconds),
+               "recovery_changes": np.asarray(self.recovery.get("changes", []), np.float64),
+               "recovery_scalars": np.array([self.recovery.get("iterations", 0), self.recovery.get("limit", 0),
+                                             float(self.recovery.get("converged", False)), self.recovery.get("seconds", 0.0)])}
+        if self.x_upsampled is not None:
+            out["x_upsampled"] = self.x_upsampled
+        return out
+
+    @classmethod
+    def from_arrays(cls, a: dict) -> "SegmentResult":
+        index, start, end, pid, retried, fail_safe = (int(v) for v in a["meta"])
+        it, limit, conv, sec = a["recovery_scalars"].tolist()
+        recovery = {"iterations": int(it), "limit": int(limit), "converged": bool(conv), "seconds": float(sec),
+                    "changes": a["recovery_changes"].tolist(), "failed": ""}
+        return cls(index, start, end, a["frame_steps"].tolist(), a["frames"], a["x_end"], a["v_end"],
+                   a["step_seconds"].tolist(), recovery, a["x_start"], a.get("x_upsampled"), pid, "",
+                   float(a["setup_seconds"]), retried, bool(fail_safe))
+
+
+def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int | None, SegmentResult]:
+    """Recover (Algorithm 3), then step to the end; yields progress, receives the end."""
+    tic = time.perf_counter()
+    fine = hier.fine
+    solver = ImplicitEulerSolver(fine.model, fine.options)
+    pid, host = os.getpid(), socket.gethostname()
+    t0 = spec.start * fine.dt
+    if spec.coarse is None:
+        if spec.start != 0:
+            raise SimulationError(f"segment {spec.index} starts at step {spec.start} but has no coarse state")
+        state, x_up, rec = fine.model.initial_state(), None, {"iterations": 0, "limit": 0, "converged": True,
+                                                            "seconds": 0.0, "changes": [], "failed": ""}
+    else:
+        start_pair, next_pair = spec.coarse
+        x_up = upsampled_state(hier, *start_pair, t0).x.numpy().copy()
+        state, report = recover_details(solver, hier, start_pair, next_pair, t0, fine.dt, spec.recovery)
+        rec = {"iterations": report.iterations, "limit": report.limit, "converged": report.converged,
+               "seconds": report.seconds, "changes": report.changes, "failed": report.failed}
+    x_start = state.x.numpy().copy()
+    setup = time.perf_counter() - tic
+    end = spec.end
+    received = yield Progress(spec.index, spec.start, 0.0, pid, host, "start")
+    end = received if received is not None else end
+    k = spec.start
+    frames, frame_steps, seconds = [], [], []
+    retried, fail_safe = 0, False
+    while end is None or k < end:
+        a = time.perf_counter()
+        state, stats = solver.step(state, fine.dt)
+        seconds.append(time.perf_counter() - a)
+        retried += int(stats.retried)
+        fail_safe |= stats.fallback
+        k += 1
+        if k % spec.steps_per_frame == 0 or k == spec.n_steps:
+            frames.append(state.x.numpy().copy())
+            frame_steps.append(k)
+        received = yield Progress(spec.index, k, seconds[-1], pid, host)
+        if received is not None:
+            end = received
+        if end is not None and k > end:
+            raise SimulationError(f"segment {spec.index} was told to end at step {end} after it had reached {k}")
+    n = fine.model.num_vertices
+    return SegmentResult(spec.index, spec.start, int(end), frame_steps,
+                         np.stack(frames) if frames else np.zeros((0, n, 3)), state.x.numpy().copy(),
+                         state.v.numpy().copy(), seconds, rec, x_start, x_up, pid, host, setup, retried, fail_safe)
+
+
+def run_segment_to_end(hier: Hierarchy, spec: SegmentSpec) -> SegmentResult:
+    """Run a segment whose end is known, start to finish, in this process."""
+    if spec.end is None:
+        raise SimulationError(f"segment {spec.index} has no end step")
+    gen = segment_run(hier, spec)
+    next(gen)
+    try:
+        while True:
+            gen.send(None)
+    except StopIteration as stop:
+        return stop.value

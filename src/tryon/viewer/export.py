@@ -1,0 +1,139 @@
+"""Write the web viewer for a drape (or one of its animations) and serve it locally.
+
+`write_viewer(drape_dir)` puts into DIR/viewer/: index.html and viewer.js (the page),
+three-bundle.min.js (three.js r187 with OrbitControls, MIT, see LICENSE-three.txt),
+scene.json (titles, frame times, array layout) and scene.bin (garment and body
+positions per frame as float32, faces as uint32, per-vertex strain in % per frame and
+the contact pressure in kPa of the final drape). `serve(dir)` serves it on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import json
+import shutil
+import threading
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tryon.errors import InputFileError
+from tryon.io.atomic import atomic_output_dir, atomic_write
+
+STATIC_FILES = ("index.html", "viewer.js", "three-bundle.min.js", "LICENSE-three.txt")
+SKIN = (0.80, 0.68, 0.60)
+CLOTH = (0.27, 0.45, 0.72)
+
+
+def vertex_strain_percent(positions: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
+    """Per-vertex strain in % [T,N] (largest principal stretch - 1 of the faces around a
+    vertex, averaged) for garment frames [T,N,3] with per-corner material coordinates."""
+    from tryon.drape.outputs import face_to_vertex
+    from tryon.sim.forces.geometry import rest_state
+    from tryon.sim.metrics import principal_stretch
+
+    F = len(faces)
+    Dm_inv, _ = rest_state(torch.from_numpy(corner_uv.reshape(-1, 2)), torch.arange(3 * F).reshape(F, 3))
+    ft = torch.from_numpy(faces)
+    out = np.empty(positions.shape[:2], dtype=np.float32)
+    for k, x in enumerate(positions):
+        s = (principal_stretch(torch.from_numpy(np.ascontiguousarray(x)), ft, Dm_inv) - 1.0).numpy() * 100.0
+        out[k] = face_to_vertex(faces, s, positions.shape[1])
+    return out
+
+
+def _load_sequence(drape_dir: Path, animation: str | None) -> dict:
+    from tryon.drape.pipeline import STATE_FILE, load_state
+
+    state = load_state(drape_dir / STATE_FILE)
+    src = drape_dir if animation is None else drape_dir / f"animation-{animation}"
+    path = src / "frames.npz"
+    if not path.exists():
+        hint = f"run `tryon animate {drape_dir} --motion {animation}` first" if animation else "run `tryon drape` again"
+        raise InputFileError(f"{path} is missing; {hint}")
+    d = np.load(path, allow_pickle=False)
+    body = d["body_vertices"]
+    return {
+        "state": state,
+        "positions": d["positions"],
+        "times": d["times"] if "times" in d.files else np.arange(len(d["positions"]), dtype=float),
+        "body": body[None] if body.ndim == 2 else body,
+        "body_faces": d["body_faces"],
+        "pressure": d["vertex_pressure"] / 1000.0 if animation is None and "vertex_pressure" in d.files else None,
+        "report": json.loads((src / "report.json").read_text()) if (src / "report.json").exists() else {},
+    }
+
+
+def _title_and_info(seq: dict, animation: str | None) -> tuple[str, list[str]]:
+    req = seq["state"]["request"]
+    rep = seq["report"]
+    body = req["body"]
+    if req["garment"].lower().endswith(".obj"):
+        title = f"{Path(req['garment']).name} in {req['fabric']}"
+    else:
+        title = f"{req['garment']} {req['size'] or 'made-to-measure'} in {req['fabric']}"
+    who = f"{body['gender']}, {body['height_cm']:.0f} cm" + (f", {body['weight_kg']:.0f} kg" if body.get("weight_kg") else "")
+    info = [who]
+    if animation:
+        info.append(f"motion: {animation}")
+    if "max_strain" in rep:
+        info.append(f"max strain {100 * rep['max_strain']:.1f} %, penetration {rep.get('penetration_pct', rep.get('max_penetration_pct', 0.0)):.2f} %")
+    return title, info
+
+
+def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str | Path | None = None) -> Path:
+    """Write the viewer for `drape_dir` (or its animation `animation`) and return its directory."""
+    drape_dir = Path(drape_dir)
+    seq = _load_sequence(drape_dir, animation)
+    st = seq["state"]
+    faces = st["faces"].astype(np.uint32)
+    pos = seq["positions"].astype(np.float32)
+    strain = vertex_strain_percent(seq["positions"], st["faces"], st["corner_uv"])
+    arrays: list[tuple[str, np.ndarray]] = [("garment_positions", pos), ("garment_faces", faces), ("strain", strain),
+                                            ("body_positions", seq["body"].astype(np.float32)),
+                                            ("body_faces", seq["body_faces"].astype(np.uint32))]
+    if seq["pressure"] is not None:
+        arrays.append(("pressure", seq["pressure"].astype(np.float32)))
+    layout, offset = {}, 0
+    for name, a in arrays:
+        layout[name] = {"offset": offset, "count": int(a.size)}
+        offset += a.nbytes
+    title, info = _title_and_info(seq, animation)
+    meta = {
+        "title": title, "info": info, "frames": int(len(pos)), "times": [float(t) for t in seq["times"]],
+        "garment": {"vertices": int(pos.shape[1]), "positions": layout["garment_positions"], "faces": layout["garment_faces"],
+                    "strain": layout["strain"], "pressure": layout.get("pressure")},
+        "body": {"vertices": int(seq["body"].shape[1]), "frames": int(len(seq["body"])), "positions": layout["body_positions"],
+                 "faces": layout["body_faces"]},
+        "strain_max": float(max(10.0, np.percentile(strain, 99))),
+        "pressure_max": float(max(0.5, np.percentile(seq["pressure"], 99))) if seq["pressure"] is not None else 1.0,
+        "colors": {"skin": list(SKIN), "cloth": list(CLOTH)},
+    }
+    out = Path(out) if out is not None else drape_dir / ("viewer" if animation is None else f"viewer-{animation}")
+    with atomic_output_dir(out) as tmp:
+        for name in STATIC_FILES:
+            with resources.as_file(resources.files("tryon.viewer").joinpath(f"static/{name}")) as src:
+                shutil.copyfile(src, tmp / name)
+        with atomic_write(tmp / "scene.json") as fh:
+            json.dump(meta, fh)
+        with atomic_write(tmp / "scene.bin", "wb") as fh:
+            for _, a in arrays:
+                fh.write(np.ascontiguousarray(a).astype(a.dtype.newbyteorder("<")).tobytes())
+    return out
+
+
+class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, format, *args):  # noqa: A002 - the base class's name
+        pass
+
+
+def start_server(directory: str | Path, port: int = 0) -> http.server.ThreadingHTTPServer:
+    """An HTTP server for `directory` on 127.0.0.1 (port 0: any free port), running in a
+    background thread; call `.shutdown()` to stop it."""
+    handler = functools.partial(_QuietHandler, directory=str(directory))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server

@@ -1,0 +1,174 @@
+// tryon web viewer: body and garment of a drape or animation, fit-map colouring, orbit
+// controls and a frame slider. Reads scene.json (layout) and scene.bin (float32 / uint32
+// arrays) written by tryon.viewer.export. URL parameters: mode=strain|pressure|plain,
+// frame=N|last.
+import * as THREE from './three-bundle.min.js';
+
+const statusEl = document.getElementById('status');
+const params = new URLSearchParams(location.search);
+
+// Turbo colour map (Mikhailov 2019), polynomial approximation, t in [0, 1].
+function turbo(t) {
+  t = Math.min(1, Math.max(0, t));
+  const r = 0.13572138 + t * (4.61539260 + t * (-42.66032258 + t * (132.13108234 + t * (-152.94239396 + t * 59.28637943))));
+  const g = 0.09140261 + t * (2.19418839 + t * (4.84296658 + t * (-14.18503333 + t * (4.27729857 + t * 2.82956604))));
+  const b = 0.10667330 + t * (12.64194608 + t * (-60.58204836 + t * (110.36276771 + t * (-89.90310912 + t * 27.34824973))));
+  return [Math.min(1, Math.max(0, r)), Math.min(1, Math.max(0, g)), Math.min(1, Math.max(0, b))];
+}
+
+// three.js shades in linear light: sRGB colours (the colour map, the palette) are decoded first
+function toLinear(rgb) {
+  return rgb.map((c) => (c <= 0.04045 ? c / 12.92 : Math.pow((c + 0.055) / 1.055, 2.4)));
+}
+
+function view(buffer, spec, Type) {
+  return new Type(buffer, spec.offset, spec.count);
+}
+
+function makeMesh(positions, faces, color, vertexColors) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
+  geometry.setIndex(new THREE.BufferAttribute(faces, 1));
+  if (vertexColors) geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(positions.length), 3));
+  geometry.computeVertexNormals();
+  const material = new THREE.MeshStandardMaterial({
+    color: new THREE.Color().setRGB(...color, THREE.SRGBColorSpace), roughness: 0.8, metalness: 0.0,
+    side: vertexColors ? THREE.DoubleSide : THREE.FrontSide, vertexColors: !!vertexColors,
+  });
+  return new THREE.Mesh(geometry, material);
+}
+
+async function main() {
+  const meta = await (await fetch('scene.json')).json();
+  const buffer = await (await fetch('scene.bin')).arrayBuffer();
+  document.getElementById('title').textContent = meta.title;
+  document.getElementById('info').innerHTML = meta.info.map((l) => `<div>${l}</div>`).join('');
+
+  const g = meta.garment, b = meta.body;
+  const gPos = view(buffer, g.positions, Float32Array);
+  const gFaces = view(buffer, g.faces, Uint32Array);
+  const bPos = view(buffer, b.positions, Float32Array);
+  const bFaces = view(buffer, b.faces, Uint32Array);
+  const strain = view(buffer, g.strain, Float32Array);
+  const pressure = g.pressure ? view(buffer, g.pressure, Float32Array) : null;
+  const nG = g.vertices * 3, nB = b.vertices * 3;
+
+  const scene = new THREE.Scene();
+  scene.background = new THREE.Color(0.96, 0.96, 0.95);
+  scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8070, 1.6));
+  const sun = new THREE.DirectionalLight(0xffffff, 1.8);
+  sun.position.set(1.5, -3, 4);
+  scene.add(sun);
+  const back = new THREE.DirectionalLight(0xffffff, 0.6);
+  back.position.set(-2, 3, 2);
+  scene.add(back);
+
+  const body = makeMesh(bPos.slice(0, nB), bFaces, meta.colors.skin, false);
+  const garment = makeMesh(gPos.slice(0, nG), gFaces, meta.colors.cloth, true);
+  scene.add(body, garment);
+
+  const container = document.getElementById('view');
+  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(window.devicePixelRatio || 1);
+  renderer.setSize(container.clientWidth, container.clientHeight);
+  renderer.outputColorSpace = THREE.SRGBColorSpace;
+  container.appendChild(renderer.domElement);
+
+  const box = new THREE.Box3().setFromBufferAttribute(body.geometry.getAttribute('position'));
+  const center = box.getCenter(new THREE.Vector3());
+  const size = box.getSize(new THREE.Vector3());
+  const camera = new THREE.PerspectiveCamera(30, container.clientWidth / container.clientHeight, 0.01, 100);
+  camera.up.set(0, 0, 1);
+  const dist = 1.15 * size.z / (2 * Math.tan((camera.fov * Math.PI) / 360));
+  camera.position.set(center.x + 0.35 * dist, center.y - dist, center.z + 0.1 * dist);
+  const shift = () => camera.setViewOffset(container.clientWidth, container.clientHeight, -0.12 * container.clientWidth, 0,
+    container.clientWidth, container.clientHeight);  // the body clear of the panel
+  shift();
+  const controls = new THREE.OrbitControls(camera, renderer.domElement);
+  controls.target.copy(center);
+  controls.update();
+
+  const slider = document.getElementById('frame');
+  const timeEl = document.getElementById('time');
+  const modeEl = document.getElementById('mode');
+  if (!pressure) modeEl.querySelector('option[value="pressure"]').disabled = true;
+  if (params.get('mode')) modeEl.value = params.get('mode');
+  slider.max = String(meta.frames - 1);
+  slider.value = params.get('frame') === 'last' ? String(meta.frames - 1) : (params.get('frame') || '0');
+
+  function legend(mode) {
+    const el = document.getElementById('legend');
+    if (mode === 'plain') { el.style.display = 'none'; return; }
+    el.style.display = '';
+    const max = mode === 'strain' ? meta.strain_max : meta.pressure_max;
+    const stops = [];
+    for (let i = 0; i <= 10; i++) { const c = turbo(i / 10).map((x) => Math.round(255 * x)); stops.push(`rgb(${c})`); }
+    el.querySelector('.bar').style.background = `linear-gradient(to right, ${stops.join(',')})`;
+    el.querySelector('.ticks').innerHTML = [0, 0.5, 1].map((f) => `<span>${(f * max).toFixed(max >= 10 ? 0 : 1)}</span>`).join('');
+    el.querySelector('.label').textContent = mode === 'strain' ? 'strain %' : 'contact pressure kPa';
+  }
+
+  function colour(frame) {
+    const mode = modeEl.value;
+    const attr = garment.geometry.getAttribute('color');
+    const out = attr.array;
+    if (mode === 'plain') {
+      const cloth = toLinear(meta.colors.cloth);
+      for (let i = 0; i < g.vertices; i++) out.set(cloth, 3 * i);
+    } else {
+      const values = mode === 'strain' ? strain.subarray(frame * g.vertices, (frame + 1) * g.vertices) : pressure;
+      const max = mode === 'strain' ? meta.strain_max : meta.pressure_max;
+      for (let i = 0; i < g.vertices; i++) out.set(toLinear(turbo(values[i] / max)), 3 * i);
+    }
+    attr.needsUpdate = true;
+    legend(mode);
+  }
+
+  function show(frame) {
+    const gp = garment.geometry.getAttribute('position');
+    gp.array.set(gPos.subarray(frame * nG, (frame + 1) * nG));
+    gp.needsUpdate = true;
+    garment.geometry.computeVertexNormals();
+    if (b.frames > 1) {
+      const bp = body.geometry.getAttribute('position');
+      bp.array.set(bPos.subarray(frame * nB, (frame + 1) * nB));
+      bp.needsUpdate = true;
+      body.geometry.computeVertexNormals();
+    }
+    colour(frame);
+    timeEl.textContent = `${meta.times[frame].toFixed(2)} s`;
+    render();
+  }
+
+  function render() { renderer.render(scene, camera); }
+
+  let playing = false;
+  document.getElementById('play').addEventListener('click', (e) => {
+    playing = !playing;
+    e.target.textContent = playing ? 'pause' : 'play';
+    const tick = () => {
+      if (!playing) return;
+      slider.value = String((Number(slider.value) + 1) % meta.frames);
+      show(Number(slider.value));
+      setTimeout(() => requestAnimationFrame(tick), 1000 / 30);
+    };
+    tick();
+  });
+  slider.addEventListener('input', () => show(Number(slider.value)));
+  modeEl.addEventListener('change', () => colour(Number(slider.value)) || render());
+  document.getElementById('show-body').addEventListener('change', (e) => { body.visible = e.target.checked; render(); });
+  document.getElementById('show-garment').addEventListener('change', (e) => { garment.visible = e.target.checked; render(); });
+  controls.addEventListener('change', render);
+  window.addEventListener('resize', () => {
+    camera.aspect = container.clientWidth / container.clientHeight;
+    shift();
+    camera.updateProjectionMatrix();
+    renderer.setSize(container.clientWidth, container.clientHeight);
+    render();
+  });
+  show(Number(slider.value));
+  statusEl.textContent = `ready: ${g.vertices} garment vertices, ${meta.frames} frames (three.js r${THREE.REVISION})`;
+  document.body.dataset.ready = '1';
+}
+
+main().catch((err) => { statusEl.textContent = `error: ${err.message}`; console.error(err); });

@@ -1,0 +1,131 @@
+"""Garments from sewing patterns: drafts in real sizes, JSON/SVG, seam-matched triangulation, dressing."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tryon.body.fit import Measurements, fit_body
+from tryon.body.measure import drafting_measurements
+from tryon.body.pose import posed_body
+from tryon.drape.fit_metrics import penetration
+from tryon.fabric import load_fabric
+from tryon.garment.drafts import GARMENTS, draft
+from tryon.garment.dress import dress_pattern
+from tryon.garment.pattern import Edge, Panel, Pattern, PatternError, Seam
+from tryon.garment.sizes import SIZES, size_chart, size_for_chest, size_measurements
+from tryon.garment.triangulate import merge_stitched, triangulate_pattern
+from tryon.errors import TryonError
+
+# boundary loops a closed garment keeps open: its openings
+OPENINGS = {"tshirt": 4, "longsleeve": 4, "dress": 4, "skirt": 2, "trousers": 3}
+
+
+@pytest.fixture(scope="module")
+def model_body():
+    m = size_measurements("M", "male")
+    fit = fit_body(Measurements(height_cm=m["height_cm"], gender="male", chest_cm=m["chest_cm"], waist_cm=m["waist_cm"],
+                                hip_cm=m["hip_cm"]))
+    meas = drafting_measurements(fit.shape)
+    return fit.shape, meas
+
+
+def test_size_chart_is_ordered_and_cited():
+    chart = size_chart()
+    assert "EN 13402" in json.dumps(chart)
+    for gender in ("male", "female"):
+        chests = [size_measurements(s, gender)["chest_cm"] for s in SIZES]
+        assert chests == sorted(chests) and len(set(chests)) == len(chests)
+        assert size_for_chest(size_measurements("L", gender)["chest_cm"], gender) == "L"
+    with pytest.raises(TryonError, match="unknown size"):
+        size_measurements("XXXXL", "male")
+
+
+@pytest.mark.parametrize("garment", GARMENTS)
+def test_drafts_have_matching_seams_and_round_trip(model_body, garment, tmp_path):
+    _, meas = model_body
+    p = draft(garment, meas, size="M")
+    assert p.area() > 0.3  # m^2: a real garment, not a swatch
+    for s in p.seams:
+        a, b = p.seam_edges(s)
+        assert abs(a.length() - b.length()) < 0.02 * max(a.length(), b.length()) + 0.003, (garment, s)
+    back = Pattern.load(p.save(tmp_path / "p.json"))
+    assert back.to_dict() == p.to_dict()
+    svg = p.to_svg(tmp_path / "p.svg").read_text()
+    assert svg.count("<polygon") == len(p.panels)
+
+
+def test_bigger_size_gives_a_bigger_tshirt(model_body):
+    shape, meas = model_body
+    small = draft("tshirt", meas, size="S")
+    from tryon.garment.drafts import Ease
+
+    loose = draft("tshirt", meas, ease=Ease(chest=0.20))
+    assert loose.area() > small.area()
+
+
+@pytest.mark.parametrize("garment", ["tshirt", "trousers"])
+def test_triangulation_matches_seam_vertices(model_body, garment):
+    _, meas = model_body
+    p = draft(garment, meas, size="M")
+    mesh = triangulate_pattern(p, 0.03)
+    for s in p.seams:
+        assert len(mesh.edge_vertices[s.a]) == len(mesh.edge_vertices[s.b])
+    # material coordinates are the panels' own 2D coordinates (lengths preserved)
+    e = mesh.faces[:, [0, 1]]
+    d2 = np.linalg.norm(mesh.points2d[e[:, 0]] - mesh.points2d[e[:, 1]], axis=1)
+    duv = np.linalg.norm(mesh.uv[e[:, 0]] - mesh.uv[e[:, 1]], axis=1)
+    np.testing.assert_allclose(d2, duv, atol=1e-9)
+    assert 0.015 < np.median(d2) < 0.045
+    # welding the stitches leaves exactly the garment's openings
+    x = np.concatenate([mesh.points2d, np.zeros((mesh.num_vertices, 1))], 1)
+    _, faces, _, _ = merge_stitched(mesh, x)
+    assert _boundary_loops(faces) == OPENINGS[garment]
+
+
+def _boundary_loops(faces: np.ndarray) -> int:
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    assert count.max() <= 2, "non-manifold seam"
+    b = uniq[count == 1]
+    n = int(faces.max()) + 1
+    g = sp.coo_matrix((np.ones(len(b)), (b[:, 0], b[:, 1])), shape=(n, n))
+    k, labels = connected_components(g, directed=False)
+    return len(np.unique(labels[np.unique(b)]))
+
+
+def test_dressing_sews_a_closed_tshirt_outside_the_body(model_body):
+    shape, meas = model_body
+    body = posed_body(shape, "a", meas["crotch_height"])
+    g = dress_pattern(draft("tshirt", meas, size="M"), body, load_fabric("gray-interlock"), edge_length=0.03,
+                      progress=False)
+    assert g.stats["sew_gap_end_m"] < 0.002
+    assert _boundary_loops(g.faces) == OPENINGS["tshirt"]
+    pen = penetration(g.vertices, body.vertices, body.faces)
+    assert pen["vertices_inside"] == 0
+    # it hangs on the torso: between the hips and the neck, around the body's axis
+    z = g.vertices[:, 2]
+    assert meas["hip_height"] - 0.15 < z.min() and z.max() < meas["neck_height"] + 0.08
+    assert abs(g.vertices[:, 0].mean()) < 0.03
+
+
+def test_bad_patterns_are_refused():
+    sq = [Edge("a", [[0, 0], [1, 0]]), Edge("b", [[1, 0], [1, 1]]), Edge("c", [[1, 1], [0, 0]])]
+    p = Panel("p", sq)
+    with pytest.raises(PatternError, match="no edge"):
+        Pattern("x", [p], [Seam(("p", "a"), ("p", "zz"))])
+    with pytest.raises(PatternError, match="at least 3 edges"):
+        Panel("q", sq[:2])
+    with pytest.raises(PatternError, match="counter-clockwise"):
+        Panel("r", [Edge("a", [[0, 0], [0, 1]]), Edge("b", [[0, 1], [1, 1]]), Edge("c", [[1, 1], [0, 0]])])
+    with pytest.raises(PatternError, match="points must be numbers"):
+        Edge("e", [["x", 0], [1, 0]])
+    with pytest.raises(PatternError, match="bezier needs 4"):
+        Edge("e", [[0, 0], [1, 0]], "bezier")
+    with pytest.raises(PatternError, match="not a tryon pattern"):
+        Pattern.from_dict({"panels": 3})
+    with pytest.raises(TryonError, match="unknown garment"):
+        draft("kimono", {}, size="M")

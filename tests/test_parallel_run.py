@@ -1,0 +1,120 @@
+"""Time-parallel runs in the in-process mode: joining segments into the serial run's
+frames, the serial output format, checkpoint/resume and bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tryon.errors import TryonError
+from tryon.parallel import ParallelOptions, run_scene_time_parallel, simulate_time_parallel
+from tryon.parallel.driver import join_segments
+from tryon.sim.runner import run_scene, simulate
+from tryon.sim.scene import example_scene
+
+
+def _scene(duration: float = 0.3):
+    return example_scene("sphere-drop", 13, duration=duration)
+
+
+@pytest.fixture(scope="module")
+def serial():
+    return simulate(_scene(), progress=False)
+
+
+@pytest.fixture(scope="module")
+def local_run():
+    opts = ParallelOptions(workers=3, partition="uniform", mode="local")
+    return simulate_time_parallel(_scene(), opts, progress=False)
+
+
+def test_local_run_joins_into_the_serial_frames(serial, local_run):
+    r = local_run
+    assert r.positions.shape == serial.positions.shape
+    assert np.allclose(r.times, serial.times)
+    cuts = r.summary["parallel"]["cuts"]
+    assert cuts == [0, 10, 20, 30] and len(r.segments) == 3
+    steps = [k for s in r.segments for k in s.frame_steps]
+    assert steps == sorted(set(steps)) and len(steps) == len(serial.times) - 1
+    # segment 0 starts from the exact initial state: its frames are the serial run's
+    first = len(r.segments[0].frame_steps) + 1
+    assert np.allclose(r.positions[:first], serial.positions[:first], atol=1e-9)
+    # later segments start from recovered coarse states: close to, not equal to, serial
+    assert not np.allclose(r.positions[first:], serial.positions[first:], atol=1e-9)
+    assert np.all(np.isfinite(r.positions))
+    assert r.summary["intersections"] == 0
+    for s in r.segments[1:]:
+        assert s.recovery["iterations"] >= 1 and s.x_upsampled is not None
+    assert r.summary["parallel"]["K"] > 1.0
+
+
+def test_join_rejects_lost_or_duplicated_frames(local_run):
+    h, segs = local_run.hierarchy, local_run.segments
+    with pytest.raises(TryonError, match="missing frames at steps \\[12"):
+        join_segments(h, [segs[0], segs[2]])
+    with pytest.raises(TryonError, match="duplicated"):
+        join_segments(h, [segs[0], segs[1], segs[1], segs[2]])
+    positions, times = join_segments(h, segs)
+    assert np.array_equal(positions, local_run.positions)
+
+
+@pytest.mark.parametrize("partition", ["balanced", "adaptive"])
+def test_other_partitions_cover_every_step(serial, partition):
+    r = simulate_time_parallel(_scene(), ParallelOptions(workers=2, partition=partition, mode="local"), progress=False)
+    cuts = r.summary["parallel"]["cuts"]
+    assert cuts[0] == 0 and cuts[-1] == 30 and len(cuts) == 3
+    assert np.allclose(r.times, serial.times)
+    if partition == "adaptive":
+        assert r.summary["parallel"]["adaptive_history"][0]["cut"] == cuts[1]
+    else:
+        assert r.summary["parallel"]["probe"]["K"] > 0
+
+
+def test_output_files_have_the_serial_format(tmp_path):
+    scene = _scene(0.1)
+    run_scene(scene, tmp_path / "serial", progress=False)
+    run_scene_time_parallel(scene, tmp_path / "par", workers=2, partition="uniform", mode="local", progress=False)
+    names = lambda d: sorted(p.relative_to(d).as_posix() for p in d.rglob("*"))  # noqa: E731
+    assert names(tmp_path / "par") == names(tmp_path / "serial")
+    a, b = np.load(tmp_path / "serial" / "frames.npz"), np.load(tmp_path / "par" / "frames.npz")
+    assert sorted(a.files) == sorted(b.files)
+    assert a["positions"].shape == b["positions"].shape and np.allclose(a["times"], b["times"])
+    summary = json.loads((tmp_path / "par" / "summary.json").read_text())
+    for key in ("steps", "wall_s", "s_per_step", "max_strain", "intersections", "min_obstacle_distance"):
+        assert key in summary
+    assert not (tmp_path / "par.partial").exists()
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_an_interrupted_run_resumes_with_its_finished_segments(tmp_path):
+    scene = _scene(0.3)
+    opts = ParallelOptions(workers=3, partition="uniform", mode="local")
+    full = simulate_time_parallel(scene, opts, progress=False)
+
+    def stop_late(p):
+        if p.index == 2 and p.step == 29:
+            raise _Stop()
+
+    with pytest.raises(_Stop):
+        run_scene_time_parallel(scene, tmp_path / "out", options=opts, progress=False, on_progress=stop_late)
+    saved = sorted(p.name for p in (tmp_path / "out.partial" / "parallel").glob("segment_*.npz"))
+    assert saved == ["segment_0000.npz", "segment_0001.npz"]
+    again = run_scene_time_parallel(scene, tmp_path / "out", options=opts, progress=False, resume=True)
+    assert again.summary["parallel"]["resumed_segments"] == [0, 1]
+    assert np.allclose(again.positions, full.positions, atol=1e-9)
+    assert (tmp_path / "out" / "frames.npz").exists() and not (tmp_path / "out.partial").exists()
+
+
+def test_bad_requests_raise_clear_errors():
+    scene = _scene(0.05)
+    with pytest.raises(TryonError, match="--workers must be at least 1"):
+        simulate_time_parallel(scene, ParallelOptions(workers=0, mode="local"), progress=False)
+    with pytest.raises(TryonError, match="segments need at least"):
+        simulate_time_parallel(scene, ParallelOptions(workers=8, mode="local"), progress=False)
+    with pytest.raises(TryonError, match="unknown partition"):
+        simulate_time_parallel(scene, ParallelOptions(partition="random", mode="local"), progress=False)
+    with pytest.raises(TryonError, match="no Ray cluster answers"):
+        simulate_time_parallel(scene, ParallelOptions(workers=2, ray_address="127.0.0.1:1"), progress=False)
