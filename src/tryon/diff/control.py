@@ -281,7 +281,7 @@ def run_point_mass(task: BasketTask) -> ControlResult:
 
 
 def render_preview(path: Path, task: BasketTask, trajectory: np.ndarray, every: int = 5, width: int = 360) -> None:
-    """Animated GIF of a trajectory with the obstacles, seen from the side."""
+    """Animated GIF of a trajectory with the obstacles, seen from above at 45 degrees."""
     from tryon.render.animation import write_gif
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes
 
@@ -289,7 +289,8 @@ def render_preview(path: Path, task: BasketTask, trajectory: np.ndarray, every: 
     faces = m.faces.numpy()
     ob = m.obstacles.vertices_at(0.0)
     statics = [RenderMesh(v, f, color=(0.75, 0.72, 0.68), smooth=False) for _name, v, f in m.obstacles.per_obstacle(ob)]
-    cam = Camera.fit(statics + [trajectory[::every].reshape(-1, 3)], view="three_quarter", margin=1.1, aspect=4 / 3)
+    cam = Camera.fit(statics + [trajectory[::every].reshape(-1, 3)], view="three_quarter", margin=1.1, aspect=4 / 3,
+                     elevation_deg=45.0)  # high enough to see into the basket
     images = []
     for x in trajectory[::every]:
         cloth = RenderMesh(x, faces, color=(0.85, 0.3, 0.25))

@@ -19,7 +19,7 @@ from tryon.sim.model import ClothModel
 
 def hinge_curvature(model: ClothModel, x: np.ndarray) -> np.ndarray:
     """Signed discrete mean curvature kappa_h [H] (1/m) of every interior edge."""
-    xt = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float64))
+    xt = torch.from_numpy(np.array(x, dtype=np.float64))
     theta = dihedral_angle(xt, model.hinges).numpy()
     length = np.linalg.norm(model.hinge_edge_dir_uv.numpy(), axis=1)
     return 3.0 * theta * length / model.hinge_area_sum.numpy()

@@ -105,7 +105,7 @@ def probe_cost_ratio(hier: Hierarchy, steps: int = 2) -> dict:
 
 
 class _Checkpoint:
-    """Files under `<folder>/parallel/`: manifest.json, segment_XXXX.npz, coarse_XXXXXX.npz
+    """Files under `<folder>/parallel/`: manifest.json, segment_<index>.npz, coarse_<step>.npz
     (states a segment started from), coarse_last.npz."""
 
     def __init__(self, folder: Path | None, fingerprint: str, key: dict):

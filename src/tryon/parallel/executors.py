@@ -273,12 +273,18 @@ class RayExecutor:
 
 
 def _warm_worker(hier: Hierarchy) -> int:
-    """Warm-up task: load the simulator's kernels in a worker with one fine step; its pid."""
+    """Warm-up task: load the simulator's and the recovery's kernels in a worker (one fine
+    step, one obstacle clearance); returns its pid."""
     import torch
 
     from tryon.sim.integrator import ImplicitEulerSolver
 
+    from tryon.parallel.recovery import clear_of_obstacles
+
     torch.set_num_threads(1)
     fine = hier.fine
-    ImplicitEulerSolver(fine.model, fine.options).step(fine.model.initial_state(), fine.dt)
+    state = fine.model.initial_state()
+    ImplicitEulerSolver(fine.model, fine.options).step(state, fine.dt)
+    x = state.x.numpy()
+    clear_of_obstacles(hier, hier.track(x, hier.restrict(x)), 0.0)  # recovery's kernels and factorisation
     return os.getpid()
