@@ -39,6 +39,7 @@ class StepOptions:
     pcg_tol: float = 1e-4
     max_substep_depth: int = 3  # a failing step is split in 2, 4, 8 substeps
     collisions: bool = True
+    max_speed: float = 50.0  # m/s: a solve that flings cloth faster has failed (retried with substeps)
 
 
 @dataclass
@@ -141,6 +142,13 @@ class ImplicitEulerSolver:
             return state, False, stats
 
         v_new = v + dv
+        speed = np.linalg.norm(v_new, axis=1)
+        if speed.max() > self.options.max_speed:
+            if not allow_fallback:
+                return state, False, stats
+            # last resort: cap the runaway velocities so the fail-safe gets a sane candidate
+            stats.fallback = True
+            v_new *= np.minimum(1.0, self.options.max_speed / np.maximum(speed, 1e-300))[:, None]
         x_new = x + dt * v_new
         x_new[self.pinned_mask] = targets
 

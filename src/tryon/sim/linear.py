@@ -226,6 +226,7 @@ class LinearSolver:
         self.max_iter = max_iter
         self._factor = None
         self.last_iterations = 0
+        self.direct_fallbacks = 0  # PCG solves that did not converge and were redone directly
 
     def solve(self, blocks: np.ndarray, rhs: np.ndarray, fixed: np.ndarray, fixed_values: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
         """rhs [N,3]; fixed: bool [N]; fixed_values [k,3] for the fixed vertices in order."""
@@ -238,6 +239,16 @@ class LinearSolver:
         x[fixed] = fixed_values
         p = self.pattern
         self.last_iterations = filtered_pcg(p.indptr, p.indices, blocks, p.diag_block, rhs, x, ~fixed, self.tol, self.max_iter)
+        if self.last_iterations >= self.max_iter or not np.all(np.isfinite(x)):
+            # stiff contact can leave PCG far from converged; its iterate is then no
+            # solution at all, so this system is solved exactly instead
+            self.direct_fallbacks += 1
+            kind, self.kind = self.kind, ("cholmod" if HAVE_CHOLMOD else "splu")
+            try:
+                x = self._solve_direct(blocks, rhs, fixed, fixed_values)
+            finally:
+                self.kind = kind
+            self.last_iterations = self.max_iter
         return x
 
     def _solve_direct(self, blocks, rhs, fixed, fixed_values):

@@ -119,12 +119,16 @@ def resolve_collisions(
     gap_fraction: float = GAP_FRACTION,
     tol: float = QP_TOL,
     trace: list | None = None,
+    max_impacts: int | None = None,
 ) -> tuple[np.ndarray, CollisionReport]:
     """Impact-zone collision response (see the module docstring). x0 must be free of
     intersections; on success the returned positions are, and no impact remains between x0
     and them. Pinned vertices and obstacles are not moved. Returns (positions, report).
     `trace`, when a list, receives one tuple (positions the impacts were found against,
-    number of new constraints appended, QPResult) per projection, for `tryon.diff`."""
+    number of new constraints appended, QPResult) per projection, for `tryon.diff`.
+    More than `max_impacts` impacts at once (default: twice the vertex count, at least
+    2000) means the candidate positions are not a collision problem but a failed step:
+    the response gives up at once rather than projecting a whole garment."""
     x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned = _prepare_response(
         x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned_mask
     )
@@ -139,12 +143,13 @@ def resolve_collisions(
     lam = np.zeros(0)
     x = x1.copy()
     report.success = False
+    limit = max(2000, 2 * len(x0)) if max_impacts is None else max_impacts
     for it in range(max_iterations + 1):
         impacts = find_impacts(x0, x, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision)
         if len(impacts) == 0:
             report.success = True
             break
-        if it == max_iterations:
+        if it == max_iterations or len(constraints) + len(impacts) > limit:
             break
         report.impacts_found += len(impacts)
         constraints = constraints + impacts
