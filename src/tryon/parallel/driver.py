@@ -46,7 +46,8 @@ MODES = ("ray", "local")
 class ParallelOptions:
     """How to split a run. `segments` defaults to `workers`; `level` picks the hierarchy
     ('auto', 'coarsen' by `factor`, 'subdivide'; see `build_hierarchy`); the coarse run
-    steps `dt_ratio` fine steps at once; `K` (fine/coarse cost per step) fixes the
+    steps `dt_ratio` fine steps at once and (garments) collides with a body proxy of
+    `obstacle_cell` metres (see `build_hierarchy`); `K` (fine/coarse cost per step) fixes the
     balanced partition, else a short probe measures it."""
 
     workers: int = 2
@@ -55,6 +56,7 @@ class ParallelOptions:
     level: str = "auto"
     factor: float | None = None
     dt_ratio: int = 1
+    obstacle_cell: float | str | None = "auto"
     recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
     K: float | None = None
     mode: str = "ray"
@@ -84,7 +86,7 @@ class ParallelOptions:
     def result_key(self) -> dict:
         """The options that change the frames (a checkpoint must match them)."""
         return {"partition": self.partition, "segments": self.num_segments, "level": self.level, "factor": self.factor,
-                "dt_ratio": self.dt_ratio, "recovery": asdict(self.recovery)}
+                "dt_ratio": self.dt_ratio, "obstacle_cell": self.obstacle_cell, "recovery": asdict(self.recovery)}
 
 
 def probe_cost_ratio(hier: Hierarchy, steps: int = 2) -> dict:
@@ -314,7 +316,7 @@ def simulate_time_parallel(
     """Simulate the fine level of `scene` time-parallel; frames match a serial fine run's."""
     opts = options or ParallelOptions()
     opts.validate()
-    hier = hierarchy or build_hierarchy(scene, opts.level, opts.factor, opts.dt_ratio)
+    hier = hierarchy or build_hierarchy(scene, opts.level, opts.factor, opts.dt_ratio, opts.obstacle_cell)
     uniform_cuts(hier.fine.num_steps, opts.num_segments, hier.dt_ratio)  # enough steps for the segments?
     if opts.mode == "local":
         executor, startup = LocalExecutor(hier), 0.0
@@ -346,7 +348,8 @@ def _summary(hier: Hierarchy, opts: ParallelOptions, driver: _Driver, executor, 
     p = len(segments)
     parallel = {
         "mode": opts.mode, "workers": opts.workers, "segments": p, "partition": opts.partition,
-        "fine_level": hier.kind, "dt_ratio": hier.dt_ratio, "coarse_vertices": hier.coarse.model.num_vertices,
+        "fine_level": hier.kind, "dt_ratio": hier.dt_ratio, "obstacle_proxies": hier.obstacle_proxies,
+        "coarse_vertices": hier.coarse.model.num_vertices,
         "cuts": driver.partitioner.cuts, "K": K, "fine_s_per_step": f, "coarse_s_per_fine_step": c,
         "coarse_steps": len(driver.coarse.seconds), "coarse_seconds": float(sum(driver.coarse.seconds)),
         "probe": driver.probe, "adaptive_history": driver.partitioner.history if opts.partition == "adaptive" else [],

@@ -194,6 +194,7 @@ class Hierarchy:
     U: sp.csr_matrix
     kind: str
     dt_ratio: int = 1
+    obstacle_proxies: list = field(default_factory=list)  # `proxy.proxy_obstacle` infos of the coarse level
     _restrict: object | None = field(default=None, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
@@ -235,7 +236,8 @@ class Hierarchy:
         return h.hexdigest()[:16]
 
 
-def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: list[PinGroup] | None = None) -> ClothModel:
+def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: list[PinGroup] | None = None,
+              obstacles: list | None = None) -> ClothModel:
     """`model`'s fabric, pins, forces, obstacles and contact settings on another mesh of the
     same cloth (pins keep their vertex indices unless given: with subdivision, coarse vertex
     i is fine vertex i)."""
@@ -243,7 +245,7 @@ def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: li
         pins = [PinGroup(p.vertices.clone(), p.motion) for p in model.pins]
     return ClothModel(
         mesh, model.fabric, pins=pins, gravity=tuple(model.gravity.tolist()), wind=model.wind,
-        obstacles=list(model.obstacles.obstacles), collision=copy.copy(model.collision), damping=model.damping,
+        obstacles=list(model.obstacles.obstacles if obstacles is None else obstacles), collision=copy.copy(model.collision), damping=model.damping,
         stitches=torch.from_numpy(np.asarray(stitches, np.int64).reshape(-1, 2)), stitch_stiffness=model.stitch_stiffness,
         air_damping=model.air_damping,
     )
@@ -258,9 +260,11 @@ LEVELS = ("auto", "coarsen", "subdivide")
 
 
 GRID_FACTOR, GARMENT_FACTOR = 2.0, 1.5  # a coarser garment's chords would cut deep into the body
+GARMENT_OBSTACLE_CELL = 0.03  # m: vertex-clustering cell of the coarse garment's body proxy
 
 
-def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = None, dt_ratio: int = 1) -> Hierarchy:
+def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = None, dt_ratio: int = 1,
+                    obstacle_cell: float | str | None = "auto") -> Hierarchy:
     """Two levels of a scene's cloth.
 
     `level="coarsen"`: the scene's cloth is the fine level (the output has the serial run's
@@ -270,7 +274,11 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
     level and the fine one its midpoint subdivision (exact linear upsampling; any mesh).
     `"auto"` coarsens when it can and subdivides otherwise. `factor` defaults to 2 for
     grids and 1.5 for garments. The fine level runs at the scene's dt, the coarse one at
-    `dt_ratio` times it."""
+    `dt_ratio` times it. `obstacle_cell` (m) replaces the coarse garment's body by a
+    decimated, inflated proxy near the garment (`tryon.parallel.proxy`; "auto": 3 cm for
+    garment animations, the real obstacles otherwise; None: the real obstacles)."""
+    if obstacle_cell is not None and obstacle_cell != "auto" and not float(obstacle_cell) > 0:
+        raise SceneError(f"the coarse obstacle cell size must be positive, got {obstacle_cell}")
     if dt_ratio < 1 or int(dt_ratio) != dt_ratio:
         raise SceneError(f"the coarse time step must be a whole multiple of the fine one, got ratio {dt_ratio}")
     if level not in LEVELS:
@@ -288,15 +296,17 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
     factor = float(factor if factor is not None else GARMENT_FACTOR if garment else GRID_FACTOR)
     if not factor > 1.0:
         raise SceneError(f"the coarsening factor must be larger than 1, got {factor}")
+    proxies: list = []
     if garment:
-        coarse_model, U = _coarser_garment(scene, factor)
+        cell = GARMENT_OBSTACLE_CELL if obstacle_cell == "auto" else obstacle_cell
+        coarse_model, U, proxies = _coarser_garment(scene, factor, cell)
     elif grid:
         coarse_model, U = _coarser_grid(scene, factor)
     else:
         raise SceneError(f"scene {scene.name}: only grid cloths and garment animations can be coarsened; "
                          "use the 'subdivide' hierarchy (the scene's cloth as the coarse level)")
     coarse_scene = _with_dt(scene, coarse_model, scene.dt * dt_ratio, f"{scene.name}-coarse")
-    return Hierarchy(coarse_scene, scene, U, f"coarsen:{factor:g}", int(dt_ratio))
+    return Hierarchy(coarse_scene, scene, U, f"coarsen:{factor:g}", int(dt_ratio), proxies)
 
 
 def _subdivided(model: ClothModel) -> tuple[ClothModel, sp.csr_matrix]:
@@ -327,9 +337,12 @@ def _coarser_grid(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_matri
     return model, embedding_operator(model.mesh, scene.model.mesh)
 
 
-def _coarser_garment(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_matrix]:
+def _coarser_garment(scene: Scene, factor: float, cell: float | None) -> tuple[ClothModel, sp.csr_matrix, list]:
     """The coarse level of a garment animation (`tryon.drape.animate.animation_scene`):
-    its drape's sewing pattern at `factor` times the drape's edge length."""
+    its drape's sewing pattern at `factor` times the drape's edge length, colliding with
+    body proxies of `cell` metres (None: with the real body)."""
+    from tryon.parallel.proxy import coarse_obstacles
+
     from tryon.drape.animate import load_drape
     from tryon.garment.pattern import Pattern
 
@@ -343,9 +356,11 @@ def _coarser_garment(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_ma
     fine_panel = np.asarray(state["face_panel"])
     mesh, coarse_panel = coarsen_garment(fine_mesh, fine_panel, Pattern.from_dict(state["pattern"]),
                                          float(state["request"]["edge_length"]) * factor)
-    mesh = _clear_of_obstacles(mesh, scene.model)
-    model = _model_on(scene.model, mesh, np.zeros((0, 2), np.int64), pins=[])
-    return model, embedding_operator(mesh, fine_mesh, coarse_panel, fine_panel)
+    obstacles, proxies = coarse_obstacles(scene.model.obstacles.obstacles, cell, near=fine_mesh.x.numpy())
+    probe = _model_on(scene.model, mesh, np.zeros((0, 2), np.int64), pins=[], obstacles=obstacles)
+    mesh = _clear_of_obstacles(mesh, probe)
+    model = _model_on(scene.model, mesh, np.zeros((0, 2), np.int64), pins=[], obstacles=obstacles)
+    return model, embedding_operator(mesh, fine_mesh, coarse_panel, fine_panel), proxies
 
 
 def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1.5, 2, 3, 4, 6, 8, 12)) -> ClothMesh:

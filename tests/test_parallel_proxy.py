@@ -1,0 +1,66 @@
+"""The coarse level's decimated obstacle proxy and detail recovery measured on its own
+(from the serial run's exact coarse-scale states)."""
+
+import numpy as np
+import pytest
+
+from tryon.errors import SceneError
+from tryon.parallel.curvature import relative_curvature_error
+from tryon.parallel.proxy import cluster_decimate, coarse_obstacles, excess_outside, proxy_obstacle
+from tryon.parallel.recovery import oracle_recovery_errors
+from tryon.parallel.hierarchy import build_hierarchy
+from tryon.sim.collision import nearest_surface_points
+from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.obstacles import Motion, sphere
+from tryon.sim.scene import example_scene
+
+
+def _moving_sphere():
+    ob = sphere([0.0, 0.0, 0.0], 0.3, subdivisions=5)
+    frames = np.stack([ob.rest_vertices + [0.05 * k, 0.0, 0.02 * k] for k in range(4)])
+    ob.motion = Motion(keyframes=frames, keyframe_times=np.arange(4) * 0.1)
+    return ob
+
+
+def test_cluster_decimation_drops_collapsed_triangles():
+    ob = sphere([0, 0, 0], 0.3, subdivisions=4)
+    C, faces = cluster_decimate(ob.rest_vertices, ob.faces, 0.06)
+    assert C.shape[1] == len(ob.rest_vertices) and C.shape[0] < len(ob.rest_vertices) / 4
+    assert np.allclose(np.asarray(C.sum(1)).ravel(), 1.0)
+    assert faces.max() < C.shape[0] and np.all(faces[:, 0] != faces[:, 1]) and np.all(faces[:, 1] != faces[:, 2])
+    with pytest.raises(SceneError):
+        cluster_decimate(ob.rest_vertices, ob.faces, 0.0)
+
+
+def test_proxy_encloses_the_moving_obstacle_and_stays_near_it():
+    ob = _moving_sphere()
+    proxy, info = proxy_obstacle(ob, 0.05)
+    assert info["faces"] < len(ob.faces) / 8 and 0 < info["offset_m"] < 0.05
+    for k, t in enumerate((0.0, 0.15, 0.3)):
+        body, p = ob.vertices_at(t), proxy.vertices_at(t)
+        d = excess_outside(p[None], proxy.faces, body[None])
+        assert np.mean(d <= 0) >= 0.995 and d.max() < 2e-3  # the body lies inside the proxy
+        centre = body.mean(0)
+        r = np.linalg.norm(p - centre, axis=1)
+        assert r.min() > 0.3 - 1e-3 and r.max() < 0.3 + info["offset_m"] + 1e-3
+        # a point just outside the proxy is outside the real sphere
+        ds, _, _ = nearest_surface_points(p + 0.001 * (p - centre) / r[:, None], body, ob.faces)
+        assert ds.min() > 0
+    small = sphere([0, 0, 0], 0.1, subdivisions=1)
+    kept, infos = coarse_obstacles([small, ob], 0.05)
+    assert kept[0] is small and kept[1].name == "sphere-proxy" and len(infos) == 1
+
+
+def test_recovery_restores_fine_detail_from_exact_coarse_states():
+    scene = example_scene("sphere-drop", 13, duration=1.0)
+    h = build_hierarchy(scene, "coarsen")
+    solver = ImplicitEulerSolver(h.fine.model, h.fine.options)
+    state = h.fine.model.initial_state()
+    xs = [state.x.numpy()]
+    for _ in range(26):
+        state, _ = solver.step(state, h.fine.dt)
+        xs.append(state.x.numpy())
+    errs = oracle_recovery_errors(solver, h, np.stack(xs), 25)
+    assert errs["after"] < 0.8 * errs["before"]
+    assert errs["before"] == pytest.approx(relative_curvature_error(h.fine.model, h.upsample(h.restrict(xs[25])), xs[25]),
+                                           rel=0.3)
