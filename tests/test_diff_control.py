@@ -14,14 +14,6 @@ from tryon.diff.rollout import Controls
 from tryon.errors import TryonError
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def task():
     return BasketTask(resolution=3, variant="flat", dt=0.05)

@@ -6,21 +6,12 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from tryon.cli import main
 from tryon.diff.fit import fit_fabric, parameter_errors
 from tryon.diff.observed import load_observed, make_observed, save_observed
 from tryon.errors import TryonError
 from tryon.fabric.presets import load_fabric
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="module")

@@ -14,15 +14,6 @@ from tryon.sim.scene import example_scene
 F64 = torch.float64
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small problems: torch's thread pool only adds contention."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _setup(name: str, res: int, pre_steps: int, push: float = 0.0):
     """Scene, simulator and a start state: the rest shape with 2 mm of seeded out-of-plane
     noise, simulated for `pre_steps` steps, plus `push` m/s downwards. The noise keeps

@@ -14,15 +14,6 @@ from tryon.sim.collision.qp import solve_projection
 TARGET = 1e-3
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small problems: torch's thread pool only adds contention."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _problem(seed: int):
     """Eight free vertices and two pinned ones coupled by six four-point constraints with
     random weights (summing to zero) and normals; about half of them start violated."""

@@ -84,21 +84,25 @@ def _cmd_drape(args: argparse.Namespace) -> int:
 def _cmd_animate(args: argparse.Namespace) -> int:
     from tryon.drape.animate import animate
 
-    run = None
-    if args.parallel == "time":
-        from tryon.parallel import run_scene_time_parallel
-
-        def run(scene, work_dir, progress, resume):
-            return run_scene_time_parallel(scene, work_dir, workers=args.workers, partition=args.partition,
-                                           ray_address=args.ray_address, progress=progress, resume=resume,
-                                           write_objs=False)
-
     rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume,
-                  run=run, duration=args.duration)
+                  run=_time_parallel_runner(args), duration=args.duration)
     print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
           f"{rep['max_strain'] * 100:.1f} %, penetration up to {rep['max_penetration_pct']:.2f} % of vertices, "
           f"intersections {rep['intersections']}")
     return 0
+
+
+def _time_parallel_runner(args: argparse.Namespace):
+    """`run(scene, work_dir, progress, resume)` for `animate` under --parallel time, or None (serial)."""
+    if args.parallel != "time":
+        return None
+    from tryon.parallel import run_scene_time_parallel
+
+    def run(scene, work_dir, progress, resume):
+        return run_scene_time_parallel(scene, work_dir, workers=args.workers, partition=args.partition,
+                                       ray_address=args.ray_address, progress=progress, resume=resume, write_objs=False)
+
+    return run
 
 
 def _cmd_view(args: argparse.Namespace) -> int:

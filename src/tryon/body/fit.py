@@ -17,7 +17,6 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 
-import numpy as np
 import torch
 
 from tryon.body.anny_model import DTYPE, LOCAL_CHANGES, BodyShape, ShapeParams, body_model, years_to_anny_age

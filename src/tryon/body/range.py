@@ -9,16 +9,27 @@ and looks like a plausible person (docs/BODY.md shows the renders this was judge
 from __future__ import annotations
 
 
+from contextlib import contextmanager
+
 from tryon.body import fit as fitmod
 
 PROBE_BMIS = (12, 14, 15, 17, 20, 25, 30, 35, 40, 45, 48, 50)
 
 
+@contextmanager
+def _probing_beyond_the_range():
+    """Lift `fit.BMI_RANGE` while probing; yields the supported range to report against."""
+    saved = fitmod.BMI_RANGE
+    fitmod.BMI_RANGE = {g: (5.0, 80.0) for g in saved}
+    try:
+        yield saved
+    finally:
+        fitmod.BMI_RANGE = saved
+
+
 def bmi_range_table(height_cm: float = 172.0, bmis=PROBE_BMIS) -> list[dict]:
     rows = []
-    saved = fitmod.BMI_RANGE
-    fitmod.BMI_RANGE = {g: (5.0, 80.0) for g in saved}  # probe beyond the supported range
-    try:
+    with _probing_beyond_the_range() as saved:
         for gender in ("female", "male"):
             for b in bmis:
                 f = fitmod.fit_body(fitmod.Measurements(height_cm=height_cm, bmi=float(b), gender=gender))
@@ -27,8 +38,6 @@ def bmi_range_table(height_cm: float = 172.0, bmis=PROBE_BMIS) -> list[dict]:
                              "mesh_distortion": f.distortion, "largest_local_change": float(local),
                              "weight_phenotype": f.params.weight, "muscle_phenotype": f.params.muscle,
                              "supported": bool(saved[gender][0] <= b <= saved[gender][1])})
-    finally:
-        fitmod.BMI_RANGE = saved
     return rows
 
 
@@ -45,10 +54,8 @@ def render_range_sheet(path, height_cm: float = 172.0, bmis=SHEET_BMIS, size=(22
     from tryon.render.colormap import _font
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
-    saved = fitmod.BMI_RANGE
-    fitmod.BMI_RANGE = {g: (5.0, 80.0) for g in saved}
     rows = []
-    try:
+    with _probing_beyond_the_range() as saved:
         for gender in ("female", "male"):
             tiles = []
             for b in bmis:
@@ -62,6 +69,4 @@ def render_range_sheet(path, height_cm: float = 172.0, bmis=SHEET_BMIS, size=(22
                 draw.text((8, 26), "supported" if ok else "refused", fill=(20, 120, 40) if ok else (180, 30, 30), font=_font(16))
                 tiles.append(np.asarray(img.convert("RGB")))
             rows.append(np.concatenate(tiles, axis=1))
-    finally:
-        fitmod.BMI_RANGE = saved
     return save_png(path, np.concatenate(rows, axis=0))

@@ -37,7 +37,7 @@ from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
 from tryon.sim.collision.contacts import Contacts
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
-from tryon.sim.linear import HAVE_CHOLMOD, bsr_matvec
+from tryon.sim.linear import HAVE_CHOLMOD, bsr_matvec, reduced_system
 from tryon.sim.model import ClothModel, ClothState, Control
 from tryon.diff.geometry import impact_frame
 from tryon.diff.qp import Projection, ProjectionFn
@@ -91,21 +91,9 @@ class TapedSolver(ImplicitEulerSolver):
 
     # ------------------------------------------------------------------ linear system
     def _factor_solve(self, blocks, rhs, fixed, fixed_values):
-        """Solve with pinned values eliminated (as `LinearSolver._solve_direct`); also
+        """Solve with pinned values eliminated (`reduced_system`); also
         return the solver of the reduced system for the adjoint."""
-        p = self.pattern
-        x_fixed = np.zeros_like(rhs)
-        x_fixed[fixed] = fixed_values
-        b = rhs.copy()
-        if fixed.any():
-            ax = np.zeros_like(rhs)
-            bsr_matvec(p.indptr, p.indices, blocks, x_fixed, ax)
-            b -= ax
-            blocks = blocks.copy()
-            blocks[fixed[p.block_row] | fixed[p.block_col]] = 0.0
-            blocks[p.diag_block[fixed]] = np.eye(3)
-            b[fixed] = fixed_values
-        A = p.to_csc(blocks)
+        A, b = reduced_system(self.pattern, blocks, rhs, fixed, fixed_values)
         if HAVE_CHOLMOD:
             if self._symbolic is None:
                 self._symbolic = _cholmod_analyze(A, mode="supernodal", ordering_method="best")

@@ -200,6 +200,24 @@ def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter)
     return it
 
 
+def reduced_system(pattern: BlockPattern, blocks: np.ndarray, rhs: np.ndarray, fixed: np.ndarray,
+                   fixed_values: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
+    """The system with the fixed vertices' values moved to the right-hand side and their
+    rows and columns replaced by identity: (A as CSC, b [N,3])."""
+    b = rhs.copy()
+    if fixed.any():
+        x_fixed = np.zeros_like(rhs)
+        x_fixed[fixed] = fixed_values
+        ax = np.zeros_like(rhs)
+        bsr_matvec(pattern.indptr, pattern.indices, blocks, x_fixed, ax)
+        b -= ax
+        blocks = blocks.copy()
+        blocks[fixed[pattern.block_row] | fixed[pattern.block_col]] = 0.0
+        blocks[pattern.diag_block[fixed]] = np.eye(3)
+        b[fixed] = fixed_values
+    return pattern.to_csc(blocks), b
+
+
 class LinearSolver:
     """Solves (blocks) dv = rhs with dv fixed on constrained vertices.
 
@@ -252,20 +270,7 @@ class LinearSolver:
         return x
 
     def _solve_direct(self, blocks, rhs, fixed, fixed_values):
-        p = self.pattern
-        x_fixed = np.zeros_like(rhs)
-        x_fixed[fixed] = fixed_values
-        b = rhs.copy()
-        if fixed.any():
-            ax = np.zeros_like(rhs)
-            bsr_matvec(p.indptr, p.indices, blocks, x_fixed, ax)
-            b -= ax
-            blocks = blocks.copy()
-            touches = fixed[p.block_row] | fixed[p.block_col]
-            blocks[touches] = 0.0
-            blocks[p.diag_block[fixed]] = np.eye(3)
-            b[fixed] = fixed_values
-        A = p.to_csc(blocks)
+        A, b = reduced_system(self.pattern, blocks, rhs, fixed, fixed_values)
         if self.kind == "cholmod":
             if self._factor is None:
                 self._factor = _cholmod_analyze(A, mode="supernodal", ordering_method="best")

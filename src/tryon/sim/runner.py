@@ -1,7 +1,7 @@
 """Run a scene to the end: step, record frames, measure, checkpoint, write outputs.
 
 Outputs of `run_scene(scene, out_dir)`:
-  frames.npz (positions [T,N,3], faces, uv, times), obj/frame_XXXX.obj, summary.json,
+  frames.npz (positions [T,N,3], faces, uv, times), obj/frame_0000.obj ..., summary.json,
   last_frame.png. The directory is assembled under `<out>.partial` and renamed when
   complete; a checkpoint there lets an interrupted run resume (`resume=True`).
 """
