@@ -114,6 +114,8 @@ def test_bad_requests_raise_clear_errors():
         simulate_time_parallel(scene, ParallelOptions(workers=0, mode="local"), progress=False)
     with pytest.raises(TryonError, match="segments need at least"):
         simulate_time_parallel(scene, ParallelOptions(workers=8, mode="local"), progress=False)
+    with pytest.raises(TryonError, match="--coarse-dt-ratio must be a whole number"):
+        simulate_time_parallel(scene, ParallelOptions(dt_ratio=0, mode="local"), progress=False)
     with pytest.raises(TryonError, match="unknown partition"):
         simulate_time_parallel(scene, ParallelOptions(partition="random", mode="local"), progress=False)
     with pytest.raises(TryonError, match="no Ray cluster answers"):

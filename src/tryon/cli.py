@@ -41,9 +41,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.parallel == "time":
         from tryon.parallel import run_scene_time_parallel
 
-        result = run_scene_time_parallel(scene, out, workers=args.workers, partition=args.partition,
-                                         ray_address=args.ray_address, progress=not args.quiet, resume=args.resume,
-                                         write_objs=not args.no_obj)
+        result = run_scene_time_parallel(scene, out, progress=not args.quiet, resume=args.resume,
+                                         write_objs=not args.no_obj, options=_parallel_options(args))
     else:
         result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj)
     s = result.summary
@@ -99,8 +98,8 @@ def _time_parallel_runner(args: argparse.Namespace):
     from tryon.parallel import run_scene_time_parallel
 
     def run(scene, work_dir, progress, resume):
-        return run_scene_time_parallel(scene, work_dir, workers=args.workers, partition=args.partition,
-                                       ray_address=args.ray_address, progress=progress, resume=resume, write_objs=False)
+        return run_scene_time_parallel(scene, work_dir, progress=progress, resume=resume, write_objs=False,
+                                       options=_parallel_options(args))
 
     return run
 
@@ -207,6 +206,16 @@ def _parallel_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--partition", choices=["uniform", "balanced", "adaptive"], default="adaptive",
                    help="where segments start (see docs/PARALLEL.md)")
     p.add_argument("--ray-address", help="join this Ray cluster instead of starting a local one")
+    p.add_argument("--coarse-dt-ratio", type=int, metavar="R",
+                   help="the coarse run takes time steps R times the fine one (cheaper coarse run, larger K; "
+                        "default 2 for garment animations, 1 otherwise)")
+
+
+def _parallel_options(args: argparse.Namespace):
+    from tryon.parallel import ParallelOptions
+
+    return ParallelOptions(workers=args.workers, partition=args.partition, ray_address=args.ray_address,
+                           dt_ratio=args.coarse_dt_ratio)
 
 
 def _body_args(p: argparse.ArgumentParser) -> None:

@@ -46,8 +46,9 @@ MODES = ("ray", "local")
 class ParallelOptions:
     """How to split a run. `segments` defaults to `workers`; `level` picks the hierarchy
     ('auto', 'coarsen' by `factor`, 'subdivide'; see `build_hierarchy`); the coarse run
-    steps `dt_ratio` fine steps at once and (garments) collides with a body proxy of
-    `obstacle_cell` metres (see `build_hierarchy`); `K` (fine/coarse cost per step) fixes the
+    steps `dt_ratio` fine steps at once (None: 2 for garment animations, else 1) and
+    (garments) may collide with a body proxy of `obstacle_cell` metres (see
+    `build_hierarchy`); `K` (fine/coarse cost per step) fixes the
     balanced partition, else a short probe measures it."""
 
     workers: int = 2
@@ -55,7 +56,7 @@ class ParallelOptions:
     segments: int | None = None
     level: str = "auto"
     factor: float | None = None
-    dt_ratio: int = 1
+    dt_ratio: int | None = None
     obstacle_cell: float | str | None = "auto"
     recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
     K: float | None = None
@@ -75,6 +76,8 @@ class ParallelOptions:
             raise TryonError(f"segments must be at least 1, got {self.segments}")
         if self.K is not None and not self.K > 0:
             raise TryonError(f"the cost ratio K must be positive, got {self.K}")
+        if self.dt_ratio is not None and (int(self.dt_ratio) != self.dt_ratio or self.dt_ratio < 1):
+            raise TryonError(f"--coarse-dt-ratio must be a whole number of fine steps, at least 1, got {self.dt_ratio}")
         if self.max_attempts < 1:
             raise TryonError(f"max_attempts must be at least 1, got {self.max_attempts}")
         self.recovery.validate()

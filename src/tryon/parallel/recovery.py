@@ -35,6 +35,7 @@ from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.parallel.hierarchy import Hierarchy
 from tryon.sim.collision import count_intersections, nearest_surface_points
+from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.model import ClothState
 
@@ -66,6 +67,8 @@ class RecoveryReport:
     changes: list[float] = field(default_factory=list)  # RMS vertex change per iteration (m)
     seconds: float = 0.0
     failed: str = ""
+    stopped: str = ""  # why iterations ended early without failing
+    detail_kept: float = 1.0  # mean fraction of the carried detail kept (`start_positions`)
 
 
 def stiffness_norm(fabric: Fabric) -> float:
@@ -135,17 +138,53 @@ def clear_of_obstacles(hier: Hierarchy, x: np.ndarray, t: float) -> tuple[np.nda
     return pushed, GAPS[-1] * h
 
 
-def upsampled_state(hier: Hierarchy, xc: np.ndarray, vc: np.ndarray, t: float, push: bool = True) -> ClothState:
-    """u(X_c), u(V_c) with pinned vertices placed exactly on their handles and (with
-    `push`) vertices moved out of the obstacles (`clear_of_obstacles`)."""
-    x = hier.upsample(xc)
-    v = hier.upsample(vc)
+def self_intersecting_vertices(hier: Hierarchy, x: np.ndarray) -> np.ndarray:
+    """Fine vertices of cloth edges and faces that pass through each other (none when the
+    fine level does not collide with itself)."""
+    m = hier.fine.model
+    if not (m.collision.enabled and m.collision.self_collision):
+        return np.zeros(0, np.int64)
+    edges, faces = m.edges.numpy(), m.faces.numpy()
+    pairs = edge_face_intersections(np.ascontiguousarray(x, np.float64), edges, np.ascontiguousarray(x, np.float64),
+                                    faces, True)
+    return np.unique(np.concatenate([edges[pairs[:, 0]].ravel(), faces[pairs[:, 1]].ravel()]))
+
+
+def _with_one_ring(faces: np.ndarray, vertices: np.ndarray, n: int) -> np.ndarray:
+    mark = np.zeros(n, bool)
+    mark[vertices] = True
+    mark[faces[mark[faces].any(1)].ravel()] = True
+    return np.flatnonzero(mark)
+
+
+def start_positions(hier: Hierarchy, xc: np.ndarray, t: float, push: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Fine positions u(X_c) (pinned vertices on their handles, with `push` moved out of the
+    obstacles) and the fraction of the carried detail kept at each vertex. The detail was
+    the fine cloth's at t = 0; carried to another pose it can put one cloth layer through
+    another (at the armpits, say), which collision handling cannot start from: around
+    such crossings it is halved, then dropped, until none are left (or no detail is)."""
     model = hier.fine.model
-    if len(model.pinned):
-        x[model.pinned.numpy()] = model.pin_targets(t).numpy()
-    if push:
-        x, _ = clear_of_obstacles(hier, x, t)
-    return ClothState(torch.from_numpy(x), torch.from_numpy(v), t)
+    n = model.num_vertices
+    keep = np.ones(n)
+    while True:
+        x = hier.upsample_positions(xc, keep)
+        if len(model.pinned):
+            x[model.pinned.numpy()] = model.pin_targets(t).numpy()
+        if push:
+            x, _ = clear_of_obstacles(hier, x, t)
+        if hier.detail is None:
+            return x, keep
+        crossing = self_intersecting_vertices(hier, x)
+        ring = _with_one_ring(model.faces.numpy(), crossing, n) if len(crossing) else crossing
+        if not len(ring) or not keep[ring].any():
+            return x, keep
+        keep[ring] = np.where(keep[ring] > 0.5, 0.5, 0.0)
+
+
+def upsampled_state(hier: Hierarchy, xc: np.ndarray, vc: np.ndarray, t: float, push: bool = True) -> ClothState:
+    """The fine state from a coarse one: `start_positions`, velocities u(V_c)."""
+    x, _ = start_positions(hier, xc, t, push)
+    return ClothState(torch.from_numpy(x), torch.from_numpy(hier.upsample(vc)), t)
 
 
 def recover_details(
@@ -163,13 +202,18 @@ def recover_details(
     model = hier.fine.model
     xc0, vc0 = coarse_start
     xc1, vc1 = coarse_next
-    state = upsampled_state(hier, xc0, vc0, t)
+    x, keep = start_positions(hier, xc0, t)
+    state = ClothState(torch.from_numpy(x), torch.from_numpy(hier.upsample(vc0)), t)
     limit = options.max_iterations if options.max_iterations is not None else iteration_limit(model.fabric, dt, options.c0)
     report = RecoveryReport(limit=limit)
     if not options.enabled or limit == 0:
         return state, report
     tic = time.perf_counter()
-    dX, dV = hier.upsample(xc1 - xc0), hier.upsample(vc1 - vc0)
+    dX = hier.upsample_positions(xc1, keep) - hier.upsample_positions(xc0, keep)
+    dV = hier.upsample(vc1 - vc0)
+    target = hier.coarse_part(xc1, keep)
+    report.detail_kept = float(keep.mean())
+    clean = not len(self_intersecting_vertices(hier, x))
     pinned = model.pinned.numpy()
     tol = options.tolerance * model.mesh.size()
     for _ in range(limit):
@@ -178,7 +222,7 @@ def recover_details(
         except SimulationError as exc:
             report.failed = str(exc)
             break
-        x = hier.track(stepped.x.numpy(), xc1)
+        x = hier.track(stepped.x.numpy(), target)
         v = hier.track(stepped.v.numpy(), vc1)
         if len(pinned):
             x[pinned] = model.pin_targets(t + dt).numpy()
@@ -186,6 +230,9 @@ def recover_details(
         if options.keep_detail_velocity < 1.0:
             v_coarse = hier.upsample(vc0)
             v = v_coarse + options.keep_detail_velocity * (v - v_coarse)
+        if clean and len(self_intersecting_vertices(hier, x)):
+            report.stopped = "the tracking projection put the cloth through itself; kept the last clean iterate"
+            break
         change = float(np.sqrt(np.mean(np.sum((x - state.x.numpy()) ** 2, 1))))
         state = ClothState(torch.from_numpy(x), torch.from_numpy(v), t)
         report.iterations += 1
@@ -215,8 +262,8 @@ def oracle_recovery_errors(solver: ImplicitEulerSolver, hier: Hierarchy, states:
     dt = hier.fine.dt
     t = step * dt
     v0, v1 = (states[step] - states[step - 1]) / dt, (states[step + 1] - states[step]) / dt
-    start = (hier.restrict(states[step]), hier.restrict(v0))
-    nxt = (hier.restrict(states[step + 1]), hier.restrict(v1))
+    start = (hier.coarse_state_of(states[step]), hier.restrict(v0))
+    nxt = (hier.coarse_state_of(states[step + 1]), hier.restrict(v1))
     before = upsampled_state(hier, *start, t).x.numpy()
     state, report = recover_details(solver, hier, start, nxt, t, dt, options)
     model = hier.fine.model

@@ -10,6 +10,7 @@ while the segment already runs)."""
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import time
 from collections.abc import Generator
@@ -22,6 +23,7 @@ from tryon.parallel.hierarchy import Hierarchy
 from tryon.parallel.recovery import RecoveryOptions, recover_details, upsampled_state
 from tryon.sim.integrator import ImplicitEulerSolver
 
+FAULT_ENV = "TRYON_PARALLEL_FAULT"  # chaos testing: "SEGMENT:STEP:MARKER" kills that segment's worker once
 CoarsePair = tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
@@ -98,6 +100,23 @@ class SegmentResult:
                    float(a["setup_seconds"]), retried, bool(fail_safe))
 
 
+def _injected_fault(index: int, step: int) -> None:
+    """With TRYON_PARALLEL_FAULT="SEGMENT:STEP:MARKER" in a worker's environment, the
+    worker running SEGMENT kills itself (SIGKILL) on reaching STEP, once: the first to do
+    so creates the file MARKER. Set only in Ray workers' environments (the chaos test)."""
+    fault = os.environ.get(FAULT_ENV)
+    if not fault:
+        return
+    segment, at, marker = fault.split(":", 2)
+    if int(segment) != index or step < int(at):
+        return
+    try:
+        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
 def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int | None, SegmentResult]:
     """Recover (Algorithm 3), then step to the end; yields progress, receives the end."""
     tic = time.perf_counter()
@@ -115,7 +134,8 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
         x_up = upsampled_state(hier, *start_pair, t0).x.numpy().copy()
         state, report = recover_details(solver, hier, start_pair, next_pair, t0, fine.dt, spec.recovery)
         rec = {"iterations": report.iterations, "limit": report.limit, "converged": report.converged,
-               "seconds": report.seconds, "changes": report.changes, "failed": report.failed}
+               "seconds": report.seconds, "changes": report.changes, "failed": report.failed,
+               "stopped": report.stopped, "detail_kept": report.detail_kept}
     x_start = state.x.numpy().copy()
     setup = time.perf_counter() - tic
     end = spec.end
@@ -131,6 +151,7 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
         retried += int(stats.retried)
         fail_safe |= stats.fallback
         k += 1
+        _injected_fault(spec.index, k)
         if k % spec.steps_per_frame == 0 or k == spec.n_steps:
             frames.append(state.x.numpy().copy())
             frame_steps.append(k)
