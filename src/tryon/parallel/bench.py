@@ -11,7 +11,8 @@ segment start before (upsampled coarse state) and after detail recovery, and the
 for recovery alone started from the serial run's exact coarse-scale states (what the
 paper's 46 % -> 14 % isolates: the coarse predictor's own shape error is not recovery's).
 
-The scheduler simulation replays the measured per-step costs (fine, coarse, recovery),
+The scheduler simulation replays the measured per-step costs (fine, coarse, and a segment's
+start-up: upsampling, crossing checks, recovery, solver set-up),
 tiled to a long run, through the partition model to predict speedup and efficiency for
 P = 8 ... 512 (`<json>-scheduler.png`). `<json>-boundary.png` shows the garment at the
 first segment boundary: serial, upsampled coarse (before recovery), recovered.
@@ -108,6 +109,7 @@ def boundary_errors(hier: Hierarchy, segments, states: np.ndarray) -> list[dict]
         out.append({"step": s.start, "before": relative_curvature_error(model, s.x_upsampled, ref),
                     "after": relative_curvature_error(model, s.x_start, ref),
                     "recovery_iterations": s.recovery["iterations"], "recovery_s": s.recovery["seconds"],
+                    "setup_s": s.setup_seconds,
                     "detail_kept": s.recovery.get("detail_kept", 1.0),
                     "serial_step_mm": 1000 * float(np.linalg.norm(states[s.start + 1] - ref, axis=1).mean())})
         if prev is not None and prev.end == s.start:
@@ -262,7 +264,7 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
                     records.append(rec)
                     last = res if p > 1 and partition == "uniform" else last
                     _print(rec)
-            recov = [b["recovery_s"] for r in records if r["scene"] == scene.name for b in r["boundaries"]]
+            recov = [b["setup_s"] for r in records if r["scene"] == scene.name for b in r["boundaries"]]
             predictions += scheduler_predictions(fine_costs, coarse, _mean(recov) or 0.0, scene.name)
             if scene.spec and "animation" in scene.spec and last is not None:
                 render_boundary(scene, hier, last, states, json_path.with_name(json_path.stem + "-boundary.png"))

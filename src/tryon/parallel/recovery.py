@@ -69,6 +69,7 @@ class RecoveryReport:
     failed: str = ""
     stopped: str = ""  # why iterations ended early without failing
     detail_kept: float = 1.0  # mean fraction of the carried detail kept (`start_positions`)
+    start: np.ndarray | None = None  # the fine positions recovery started from (u(X_c), cleared)
 
 
 def stiffness_norm(fabric: Fabric) -> float:
@@ -205,7 +206,7 @@ def recover_details(
     x, keep = start_positions(hier, xc0, t)
     state = ClothState(torch.from_numpy(x), torch.from_numpy(hier.upsample(vc0)), t)
     limit = options.max_iterations if options.max_iterations is not None else iteration_limit(model.fabric, dt, options.c0)
-    report = RecoveryReport(limit=limit)
+    report = RecoveryReport(limit=limit, start=x.copy())
     if not options.enabled or limit == 0:
         return state, report
     tic = time.perf_counter()

@@ -20,7 +20,7 @@ import numpy as np
 
 from tryon.errors import SimulationError
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.parallel.recovery import RecoveryOptions, recover_details, upsampled_state
+from tryon.parallel.recovery import RecoveryOptions, recover_details
 from tryon.sim.integrator import ImplicitEulerSolver
 
 FAULT_ENV = "TRYON_PARALLEL_FAULT"  # chaos testing: "SEGMENT:STEP:MARKER" kills that segment's worker once
@@ -131,8 +131,8 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
                                                             "seconds": 0.0, "changes": [], "failed": ""}
     else:
         start_pair, next_pair = spec.coarse
-        x_up = upsampled_state(hier, *start_pair, t0).x.numpy().copy()
         state, report = recover_details(solver, hier, start_pair, next_pair, t0, fine.dt, spec.recovery)
+        x_up = report.start
         rec = {"iterations": report.iterations, "limit": report.limit, "converged": report.converged,
                "seconds": report.seconds, "changes": report.changes, "failed": report.failed,
                "stopped": report.stopped, "detail_kept": report.detail_kept}

@@ -10,7 +10,7 @@ import numpy as np
 
 from tryon.sim.collision.bvh import BVH, _box_dist2, element_boxes, overlapping_pairs
 from tryon.sim.collision.contacts import as_index, as_points, check_finite
-from tryon.sim.collision.geometry import edge_normals, face_edge_ids, face_normals, vertex_normals
+from tryon.sim.collision.geometry import cached_face_edge_ids, cached_mesh_edges, face_normals, obstacle_normals
 from tryon.sim.collision.primitives import jit, point_triangle_distance, row, segment_triangle_intersect
 from tryon.sim.collision.proximity import prepare_inputs
 
@@ -157,16 +157,17 @@ def _pseudonormal(ob: np.ndarray, ob_faces: np.ndarray, face: np.ndarray, bary: 
     out = nf[face].copy()
     zero = bary == 0.0
     n_zero = zero.sum(1)
-    on_vertex = n_zero == 2
-    if on_vertex.any():
-        corner = np.argmax(bary[on_vertex], 1)
-        out[on_vertex] = vertex_normals(ob, ob_faces)[ob_faces[face[on_vertex], corner]]
-    on_edge = n_zero == 1
-    if on_edge.any():
-        edges = np.unique(np.sort(np.concatenate([ob_faces[:, [0, 1]], ob_faces[:, [1, 2]], ob_faces[:, [2, 0]]]), 1), axis=0)
-        fe = face_edge_ids(ob_faces, edges)
-        slot = (np.argmax(zero[on_edge], 1) + 1) % 3  # edge (v_k, v_k+1) lies opposite corner k+2
-        out[on_edge] = edge_normals(ob, ob_faces, edges)[fe[face[on_edge], slot]]
+    on_vertex, on_edge = n_zero == 2, n_zero == 1
+    if on_vertex.any() or on_edge.any():
+        edges = cached_mesh_edges(ob_faces)
+        vn, en = obstacle_normals(ob, ob_faces, edges)
+        if on_vertex.any():
+            corner = np.argmax(bary[on_vertex], 1)
+            out[on_vertex] = vn[ob_faces[face[on_vertex], corner]]
+        if on_edge.any():
+            fe = cached_face_edge_ids(ob_faces, edges)
+            slot = (np.argmax(zero[on_edge], 1) + 1) % 3  # edge (v_k, v_k+1) lies opposite corner k+2
+            out[on_edge] = en[fe[face[on_edge], slot]]
     return out
 
 
