@@ -128,6 +128,9 @@ def test_scheduler_simulation_reproduces_the_model_bounds_for_steady_costs(tmp_p
     # recovery time at every segment start costs speedup
     slow = fine.sum() / simulate_schedule(fine, coarse, 5000.0, 8, "balanced")
     assert slow < 0.9 * speedup_bounds(K, 8)["balanced"]
+    # the cross-fade overlap: balanced segments end together, all but the last 100 steps later
+    balanced = simulate_schedule(fine, coarse, 0.0, 8, "balanced")
+    assert simulate_schedule(fine, coarse, 0.0, 8, "balanced", overlap=100) == pytest.approx(balanced + 100 * K, rel=1e-3)
     rows = scheduler_predictions(np.array([2.0, 4.0]), np.array([0.5, 0.5]), 0.0, "toy")
     assert {r["workers"] for r in rows} == {8, 16, 32, 64, 128, 256, 512}
     assert all(0 < r["efficiency"] <= 1 for r in rows)

@@ -51,7 +51,7 @@ def test_a_killed_worker_loses_no_frame(ray_session, serial, fault_marker):
     assert fault_marker.exists(), "the worker of segment 1 was killed"
     assert r.summary["parallel"]["attempts"]["1"] >= 2
     assert np.allclose(r.times, serial.times)
-    steps = [k for s in r.segments for k in s.frame_steps]
+    steps = [k for s in r.segments for k in s.own_steps]
     assert steps == sorted(set(steps)) and len(steps) == len(serial.times) - 1
     assert np.all(np.isfinite(r.positions))
 
@@ -62,7 +62,7 @@ def test_ray_run_streams_segments_from_worker_processes(ray_session, serial):
                                on_progress=seen.append)
     assert ray_session.is_initialized()  # a Ray the caller started is left running
     assert r.positions.shape == serial.positions.shape and np.allclose(r.times, serial.times)
-    first = len(r.segments[0].frame_steps) + 1
+    first = len(r.segments[0].own_steps) + 1
     assert np.allclose(r.positions[:first], serial.positions[:first], atol=1e-7)
     assert {p.pid for p in seen} - {os.getpid()}, "segments ran in Ray worker processes"
     assert r.summary["parallel"]["mode"] == "ray" and len(r.segments) == 2
@@ -88,11 +88,12 @@ def test_simulate_command_runs_time_parallel_with_a_larger_coarse_step(ray_sessi
 
     out = tmp_path / "run"
     rc = main(["simulate", "--example", "sphere-drop", "--resolution", "13", "--duration", "0.3", "--parallel", "time",
-               "--workers", "2", "--partition", "uniform", "--coarse-dt-ratio", "3", "--no-obj", "--out", str(out),
+               "--workers", "2", "--partition", "uniform", "--coarse-dt-ratio", "3", "--crossfade", "0.05", "--no-obj", "--out", str(out),
                "--quiet"])
     assert rc == 0
     summary = json.loads((out / "summary.json").read_text())
     par = summary["parallel"]
     assert par["dt_ratio"] == 3 and all(c % 3 == 0 for c in par["cuts"]) and par["cuts"][-1] == 30
+    assert par["crossfade"]["steps"] == 5
     frames = np.load(out / "frames.npz")
     assert frames["positions"].shape == serial.positions.shape

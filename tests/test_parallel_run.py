@@ -8,7 +8,7 @@ import pytest
 
 from tryon.errors import TryonError
 from tryon.parallel import ParallelOptions, run_scene_time_parallel, simulate_time_parallel
-from tryon.parallel.driver import join_segments
+from tryon.parallel.join import join_segments
 from tryon.sim.runner import run_scene, simulate
 from tryon.sim.scene import example_scene
 
@@ -34,10 +34,12 @@ def test_local_run_joins_into_the_serial_frames(serial, local_run):
     assert np.allclose(r.times, serial.times)
     cuts = r.summary["parallel"]["cuts"]
     assert cuts == [0, 10, 20, 30] and len(r.segments) == 3
-    steps = [k for s in r.segments for k in s.frame_steps]
+    steps = [k for s in r.segments for k in s.own_steps]
     assert steps == sorted(set(steps)) and len(steps) == len(serial.times) - 1
+    # segments run past their ends for the cross-fade (all but the last)
+    assert [max(s.frame_steps) for s in r.segments] == [20, 30, 30]  # at most the next segment's length
     # segment 0 starts from the exact initial state: its frames are the serial run's
-    first = len(r.segments[0].frame_steps) + 1
+    first = len(r.segments[0].own_steps) + 1
     assert np.allclose(r.positions[:first], serial.positions[:first], atol=1e-9)
     # later segments start from recovered coarse states: close to, not equal to, serial
     assert not np.allclose(r.positions[first:], serial.positions[first:], atol=1e-9)
@@ -91,7 +93,7 @@ class _Stop(Exception):
 
 def test_an_interrupted_run_resumes_with_its_finished_segments(tmp_path):
     scene = _scene(0.3)
-    opts = ParallelOptions(workers=3, partition="uniform", mode="local")
+    opts = ParallelOptions(workers=3, partition="uniform", mode="local", crossfade=0.05)
     full = simulate_time_parallel(scene, opts, progress=False)
 
     def stop_late(p):
@@ -120,3 +122,57 @@ def test_bad_requests_raise_clear_errors():
         simulate_time_parallel(scene, ParallelOptions(partition="random", mode="local"), progress=False)
     with pytest.raises(TryonError, match="no Ray cluster answers"):
         simulate_time_parallel(scene, ParallelOptions(workers=2, ray_address="127.0.0.1:1"), progress=False)
+
+
+def test_join_cross_fades_each_boundary_from_the_previous_segments_overlap(local_run):
+    from tryon.parallel.join import crossfade_weight
+
+    w = [crossfade_weight(k, 10, 8) for k in range(8, 21)]
+    assert w[:3] == [0.0, 0.0, 0.0] and w[-3:] == [1.0, 1.0, 1.0] and np.all(np.diff(w) >= 0)
+    assert crossfade_weight(14, 10, 8) == pytest.approx(0.5)
+    r = local_run
+    prev, seg = r.segments[0], r.segments[1]
+    frames = dict(zip(r.times.round(6), r.positions))
+    blended = 0
+    for k, own in zip(seg.frame_steps, seg.frames):
+        if k > seg.end:
+            break
+        joined = frames[round(k * r.hierarchy.fine.dt, 6)]
+        if k >= seg.end:  # the overlap is longer than the segment: w reaches 1 at its end
+            assert np.array_equal(joined, own)
+            continue
+        earlier = prev.frames[prev.frame_steps.index(k)]
+        wk = crossfade_weight(k, seg.start, seg.end - seg.start)
+        assert np.allclose(joined, (1 - wk) * earlier + wk * own, atol=1e-4)  # obstacle push-outs aside
+        blended += 1
+    assert blended >= 2 and r.summary["parallel"]["crossfade"]["blended_frames"]["10"] == blended
+
+
+def test_without_crossfade_segments_stop_at_their_ends(serial):
+    r = simulate_time_parallel(_scene(), ParallelOptions(workers=3, partition="uniform", mode="local", crossfade=0.0),
+                               progress=False)
+    assert all(max(s.frame_steps) <= s.end for s in r.segments)
+    own = np.concatenate([s.frames for s in r.segments])
+    assert np.array_equal(r.positions[1:], own) and r.summary["parallel"]["crossfade"]["steps"] == 0
+    with pytest.raises(TryonError, match="--crossfade must be a duration"):
+        simulate_time_parallel(_scene(), ParallelOptions(crossfade=-1.0, mode="local"), progress=False)
+
+
+def test_bench_popping_measures_the_jump_the_plain_join_shows(local_run):
+    """With the serial states in place of the joined frames, the cross-faded pop is zero,
+    while the plain join's pop (from the segments' own frames) stays what it was."""
+    from tryon.parallel.bench import popping, serial_run
+
+    states, _ = serial_run(_scene())
+    r = local_run
+    measured = popping(r, states)
+    assert measured["pop_plain_mm"] > 0 and np.isfinite(measured["pop_crossfade_mm"])
+    assert measured["serial_frame_mm"] > 0
+    steps = [0] + [k for s in r.segments for k in s.own_steps]
+
+    class _Serial:
+        hierarchy, segments, summary = r.hierarchy, r.segments, r.summary
+        positions = states[steps]
+
+    ideal = popping(_Serial(), states)
+    assert ideal["pop_crossfade_mm"] == 0.0 and ideal["pop_plain_mm"] == measured["pop_plain_mm"]

@@ -14,8 +14,10 @@ paper's 46 % -> 14 % isolates: the coarse predictor's own shape error is not rec
 The scheduler simulation replays the measured per-step costs (fine, coarse, and a segment's
 start-up: upsampling, crossing checks, recovery, solver set-up),
 tiled to a long run, through the partition model to predict speedup and efficiency for
-P = 8 ... 512 (`<json>-scheduler.png`). `<json>-boundary.png` shows the garment at the
-first segment boundary: serial, upsampled coarse (before recovery), recovered.
+P = 8 ... 512 (`<json>-scheduler.png`). The pop a viewer sees is measured on the joined
+frames against the serial run's, with and without the cross-fade (`popping`), and
+`<json>-boundary.png` shows the garment around the first segment boundary: serial,
+cross-faded and plain joins.
 """
 
 from __future__ import annotations
@@ -129,6 +131,41 @@ def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
+def _frame_excess(positions: np.ndarray, serial: np.ndarray) -> np.ndarray:
+    """Per frame transition: mean over vertices of |(x_{f+1} - x_f) - (s_{f+1} - s_f)| (m),
+    how much more (or otherwise) the cloth moves between two frames than in the serial run."""
+    return np.linalg.norm(np.diff(positions, axis=0) - np.diff(serial, axis=0), axis=2).mean(axis=1)
+
+
+def popping(result, states: np.ndarray) -> dict:
+    """The pop a viewer sees, from the joined frames against the serial run's frames: the
+    largest frame-to-frame excess motion (`_frame_excess`) near each boundary (from one
+    frame before it to one frame after its cross-fade), averaged over boundaries, with and
+    without the cross-fade (the latter joins the segments' own frames, as with
+    --crossfade 0), next to the median excess away from boundaries and the serial run's
+    mean motion per frame (segment 0, exactly the serial run, left out of the median)."""
+    hier, segs = result.hierarchy, result.segments
+    fine = hier.fine
+    steps = [0] + [k for s in segs for k in s.own_steps]
+    serial = states[steps]
+    plain = np.concatenate([fine.model.initial_state().x.numpy()[None]] + [s.frames[: len(s.own_steps)] for s in segs])
+    span = result.summary["parallel"]["crossfade"]["steps"]
+    near = np.zeros(len(steps) - 1, bool)
+    windows = []
+    for s in segs[1:]:
+        lo = max(0, int(np.searchsorted(steps, s.start)) - 1)
+        hi = int(np.searchsorted(steps, min(s.start + span, s.end))) + 1
+        near[lo:hi] = True
+        windows.append((lo, hi))
+    faded, raw = _frame_excess(result.positions, serial), _frame_excess(plain, serial)
+    away = ~near & (np.asarray(steps[1:]) > segs[1].start if len(segs) > 1 else np.zeros(len(near), bool))
+    motion = np.linalg.norm(np.diff(serial, axis=0), axis=2).mean(axis=1)
+    return {"pop_crossfade_mm": _mean([1000 * faded[a:b].max() for a, b in windows]),
+            "pop_plain_mm": _mean([1000 * raw[a:b].max() for a, b in windows]),
+            "pop_baseline_mm": 1000 * float(np.median(faded[away])) if away.any() else None,
+            "serial_frame_mm": 1000 * float(motion.mean())}
+
+
 def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s: float, workers: int,
                     partition: str) -> tuple[dict, object]:
     opts = ParallelOptions(workers=workers, partition=partition)
@@ -150,6 +187,8 @@ def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s:
         "curvature_error_exact_coarse_after": _mean([e["exact_coarse_after"] for e in errors if "exact_coarse_after" in e]),
         "boundary_jump_mm": _mean([e["jump_mm"] for e in errors if "jump_mm" in e]),
         "serial_step_mm": _mean([e["serial_step_mm"] for e in errors]),
+        **popping(r, states), "crossfade_s": opts.crossfade,
+        "crossfade_replaced_frames": sum(par["crossfade"]["replaced_frames"].values()),
         "detail_carried": hier.detail is not None,
         "obstacle_proxies": hier.obstacle_proxies,
         "boundaries": errors, "resubmitted": par["resubmitted"],
@@ -158,26 +197,30 @@ def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s:
     return record, r
 
 
-def simulate_schedule(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, p: int, partition: str) -> float:
+def simulate_schedule(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, p: int, partition: str,
+                      overlap: int = 0) -> float:
     """Wall time of a time-parallel run with p segments given per-step costs: segment j
-    starts once the coarse run has passed s_j + 1 (plus its recovery) and runs its steps."""
+    starts once the coarse run has passed s_j + 1 (plus its recovery) and runs its steps,
+    plus the cross-fade overlap (at most the next segment's length) unless it is the last."""
     n = len(fine)
     K = float(fine.mean() / coarse.mean())
     cuts = np.asarray(balanced_cuts(n, p, K) if partition == "balanced" else uniform_cuts(n, p))
     cf = np.concatenate([[0.0], np.cumsum(fine)])
     cc = np.concatenate([[0.0], np.cumsum(coarse)])
     start = np.where(cuts[:-1] == 0, 0.0, cc[np.minimum(cuts[:-1] + 1, n)] + recovery_s)
-    return float(np.max(start + cf[cuts[1:]] - cf[cuts[:-1]]))
+    extra = np.append(np.minimum(overlap, np.diff(cuts)[1:]), 0)
+    return float(np.max(start + cf[cuts[1:] + extra] - cf[cuts[:-1]]))
 
 
-def scheduler_predictions(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, scene: str) -> list[dict]:
+def scheduler_predictions(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, scene: str,
+                          overlap: int = 0) -> list[dict]:
     """Predicted speedup and efficiency for P = 8..512 from measured costs tiled to 16 x 512 steps."""
     n = 16 * max(SCHEDULER_P)
     f, c = np.resize(fine, n), np.resize(coarse, n)
     out = []
     for p in SCHEDULER_P:
         for partition in ("uniform", "balanced"):
-            speedup = float(f.sum() / simulate_schedule(f, c, recovery_s, p, partition))
+            speedup = float(f.sum() / simulate_schedule(f, c, recovery_s, p, partition, overlap))
             out.append({"scene": scene, "workers": p, "partition": partition, "predicted_speedup": speedup,
                         "efficiency": speedup / p, "K": float(f.mean() / c.mean()), "steps": n})
     return out
@@ -210,32 +253,55 @@ def plot_scheduler(predictions: list[dict], path: Path) -> None:
     os.replace(tmp, path)
 
 
+POP_MM = 8.0  # top of the colour scale of the boundary picture
+
+
 def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, path: Path) -> None:
-    """The garment at the first segment boundary, labelled: the serial run; the previous
-    segment's end and this segment's start (the two frames a viewer sees meet there); the
-    upsampled coarse state before recovery."""
+    """The garment around the first segment boundary, labelled: rows are the serial run,
+    the joined time-parallel run (cross-faded) and the segments' own frames (as with
+    --crossfade 0), the latter two coloured by each vertex's extra motion since the
+    previous frame against the serial run (the pop); columns the frame before the
+    boundary, the first after it, and two frames later in the cross-fade."""
     from PIL import Image, ImageDraw
 
     from tryon.drape.outputs import CLOTH, SKIN
+    from tryon.render.colormap import add_colorbar, scalar_to_rgb
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
-    k = next(i for i, s in enumerate(result.segments) if s.x_upsampled is not None)
-    seg, prev = result.segments[k], result.segments[k - 1]
-    t = seg.start * scene.dt
-    body = scene.model.obstacles.vertices_at(t)
+    segs = result.segments
+    k = next(i for i, s in enumerate(segs) if s.x_upsampled is not None)
+    seg = segs[k]
+    steps = [0] + [s for g in segs for s in g.own_steps]
+    plain = dict(zip(steps, [result.positions[0]] + [x for g in segs for x in g.frames[: len(g.own_steps)]]))
+    joined = dict(zip(steps, result.positions))
+    first = int(np.searchsorted(steps, seg.start + 1))
+    span = result.summary["parallel"]["crossfade"]["steps"]
+    last = min(int(np.searchsorted(steps, seg.start + span)), len(steps) - 1)
+    columns = sorted({first - 1, first, (first + last) // 2, last})
+    rows = [("serial run", None), ("time-parallel, cross-faded", joined), ("segments' own frames (no cross-fade)", plain)]
     faces = scene.model.faces.numpy()
-    shapes = [(states[seg.start], "serial run"), (prev.x_end, f"parallel: segment {k - 1} ends"),
-              (seg.x_start, f"parallel: segment {k} starts"), (seg.x_upsampled, "coarse, upsampled")]
-    cam = Camera.fit([np.concatenate([shapes[0][0], body[body[:, 2] > shapes[0][0][:, 2].min() - 0.1]])],
-                     "three_quarter", aspect=0.75, margin=1.1)
-    panels = []
-    for x, label in shapes:
-        img = render_meshes([RenderMesh(body, scene.model.obstacles.faces, color=SKIN, two_sided=False),
-                             RenderMesh(x, faces, color=CLOTH)], 360, 480, camera=cam)
-        pil = Image.fromarray(img)
-        ImageDraw.Draw(pil).text((12, 10), f"{label}\nstep {seg.start} (t = {t:.2f} s)", fill=(30, 30, 30))
-        panels.append(np.asarray(pil))
-    save_png(path, np.concatenate(panels, axis=1))
+    cam = Camera.fit([states[seg.start]], "three_quarter", aspect=0.75, margin=1.25)
+    grid = []
+    for label, frames in rows:
+        panels = []
+        for i in columns:
+            step, before = steps[i], steps[i - 1]
+            body = scene.model.obstacles.vertices_at(step * scene.dt)
+            if frames is None:
+                cloth = RenderMesh(states[step], faces, color=CLOTH)
+            else:
+                extra = np.linalg.norm((frames[step] - frames[before]) - (states[step] - states[before]), axis=1)
+                cloth = RenderMesh(frames[step], faces, vertex_colors=scalar_to_rgb(1000 * extra, 0.0, POP_MM, "magma"))
+            img = render_meshes([RenderMesh(body, scene.model.obstacles.faces, color=SKIN, two_sided=False), cloth],
+                                300, 400, camera=cam)
+            pil = Image.fromarray(img)
+            where = "boundary" if step == seg.start else f"{step - seg.start:+d} steps from the boundary"
+            ImageDraw.Draw(pil).text((10, 8), f"{label}\nstep {step} ({where})", fill=(30, 30, 30))
+            panels.append(np.asarray(pil))
+        grid.append(np.concatenate(panels, axis=1))
+    picture = add_colorbar(np.concatenate(grid, axis=0), 0.0, POP_MM, "magma",
+                           label="extra motion (mm)")
+    save_png(path, picture)
 
 
 def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] | None = None) -> list[dict]:
@@ -265,7 +331,8 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
                     last = res if p > 1 and partition == "uniform" else last
                     _print(rec)
             recov = [b["setup_s"] for r in records if r["scene"] == scene.name for b in r["boundaries"]]
-            predictions += scheduler_predictions(fine_costs, coarse, _mean(recov) or 0.0, scene.name)
+            overlap = int(round(ParallelOptions().crossfade / scene.dt))
+            predictions += scheduler_predictions(fine_costs, coarse, _mean(recov) or 0.0, scene.name, overlap)
             if scene.spec and "animation" in scene.spec and last is not None:
                 render_boundary(scene, hier, last, states, json_path.with_name(json_path.stem + "-boundary.png"))
     finally:
@@ -292,4 +359,6 @@ def _print(r: dict) -> None:
           f"{fmt(r['bound_balanced'])}) curvature error {fmt(r['curvature_error_before'])} -> "
           f"{fmt(r['curvature_error_after'])} (exact coarse shape: {fmt(r['curvature_error_exact_coarse_before'])} -> "
           f"{fmt(r['curvature_error_exact_coarse_after'])}); boundary jump {fmt(r['boundary_jump_mm'])} mm "
-          f"(serial step {fmt(r['serial_step_mm'])} mm)")
+          f"(serial step {fmt(r['serial_step_mm'])} mm); pop per frame {fmt(r['pop_plain_mm'])} -> "
+          f"{fmt(r['pop_crossfade_mm'])} mm cross-faded (elsewhere {fmt(r['pop_baseline_mm'])}, serial motion "
+          f"{fmt(r['serial_frame_mm'])} mm/frame)")

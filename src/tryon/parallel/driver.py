@@ -5,8 +5,10 @@ run reaches a partition point s_j (and one coarse step beyond it, for the recove
 coarse change), it launches fine segment j, which recovers the fine detail (Algorithm 3)
 and simulates steps s_j..s_{j+1}. Segment 0 starts at once from the scene's exact initial
 state. With the adaptive partition (Algorithm 2) the cut s_{j+1} is decided online, while
-segment j already runs, from the measured coarse and fine costs. Segments stream back as
-they finish and are joined into the frames a serial fine run would keep.
+segment j already runs, from the measured coarse and fine costs. Every segment but the
+last runs `crossfade` seconds past its end, and the join cross-fades those frames with
+the next segment's first ones (`join`), so the boundaries do not pop. Segments stream
+back as they finish and are joined into the frames a serial fine run would keep.
 
 Checkpoints (`checkpoint_dir`): the partition, every finished segment, the coarse states
 each launched segment started from and the coarse run's latest state. A stopped run
@@ -26,11 +28,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from tryon.errors import SimulationError, TryonError
+from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.parallel.coarse import CoarseRun
 from tryon.parallel.executors import LocalExecutor, Progress, RayExecutor
 from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
+from tryon.parallel.join import join_with_crossfade
 from tryon.parallel.partition import PARTITIONS, AdaptivePartitioner, balanced_cuts, speedup_bounds, uniform_cuts
 from tryon.parallel.recovery import RecoveryOptions
 from tryon.parallel.segment import SegmentResult, SegmentSpec
@@ -49,7 +52,9 @@ class ParallelOptions:
     steps `dt_ratio` fine steps at once (None: 2 for garment animations, else 1) and
     (garments) may collide with a body proxy of `obstacle_cell` metres (see
     `build_hierarchy`); `K` (fine/coarse cost per step) fixes the
-    balanced partition, else a short probe measures it."""
+    balanced partition, else a short probe measures it. `crossfade` (seconds) is how long
+    each segment runs past its end for the join's cross-fade (0: segments meet in one
+    frame)."""
 
     workers: int = 2
     partition: str = "adaptive"
@@ -59,6 +64,7 @@ class ParallelOptions:
     dt_ratio: int | None = None
     obstacle_cell: float | str | None = "auto"
     recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
+    crossfade: float = 0.2
     K: float | None = None
     mode: str = "ray"
     ray_address: str | None = None
@@ -78,6 +84,8 @@ class ParallelOptions:
             raise TryonError(f"the cost ratio K must be positive, got {self.K}")
         if self.dt_ratio is not None and (int(self.dt_ratio) != self.dt_ratio or self.dt_ratio < 1):
             raise TryonError(f"--coarse-dt-ratio must be a whole number of fine steps, at least 1, got {self.dt_ratio}")
+        if not self.crossfade >= 0:
+            raise TryonError(f"--crossfade must be a duration in seconds, 0 or more, got {self.crossfade}")
         if self.max_attempts < 1:
             raise TryonError(f"max_attempts must be at least 1, got {self.max_attempts}")
         self.recovery.validate()
@@ -89,7 +97,8 @@ class ParallelOptions:
     def result_key(self) -> dict:
         """The options that change the frames (a checkpoint must match them)."""
         return {"partition": self.partition, "segments": self.num_segments, "level": self.level, "factor": self.factor,
-                "dt_ratio": self.dt_ratio, "obstacle_cell": self.obstacle_cell, "recovery": asdict(self.recovery)}
+                "dt_ratio": self.dt_ratio, "obstacle_cell": self.obstacle_cell, "recovery": asdict(self.recovery),
+                "crossfade": self.crossfade}
 
 
 def probe_cost_ratio(hier: Hierarchy, steps: int = 2) -> dict:
@@ -163,6 +172,7 @@ class _Driver:
         self.hier, self.opts = hier, opts
         fine = hier.fine
         self.N, self.r, self.per_frame = fine.num_steps, hier.dt_ratio, fine.steps_per_frame
+        self.overlap = int(round(opts.crossfade / fine.dt))
         self.ckpt = _Checkpoint(checkpoint_dir, hier.fingerprint(), opts.result_key())
         self.on_progress = on_progress
         self.done: dict[int, SegmentResult] = {}
@@ -259,7 +269,9 @@ class _Driver:
             coarse = None if start == 0 else self.coarse.start_pair(start)
             if start > 0:
                 self.ckpt.save_coarse(f"coarse_{start:06d}.npz", self.coarse.states, [start, start + self.r])
-            executor.submit(SegmentSpec(j, start, end, self.N, self.per_frame, coarse, self.opts.recovery))
+            # the cross-fade needs no more than the next segment's length, where that is known
+            overlap = min(self.overlap, cuts[j + 2] - cuts[j + 1]) if j + 2 < len(cuts) else self.overlap
+            executor.submit(SegmentSpec(j, start, end, self.N, self.per_frame, coarse, self.opts.recovery, overlap))
             self.launched.add(j)
 
     def _finish(self, res: SegmentResult) -> None:
@@ -285,26 +297,6 @@ class ParallelRunResult(RunResult):
 
     segments: list[SegmentResult] = field(default_factory=list)
     hierarchy: Hierarchy | None = None
-
-
-def serial_frame_steps(n_steps: int, steps_per_frame: int) -> list[int]:
-    """Steps whose states a serial run keeps as frames (after the initial state)."""
-    return [k for k in range(1, n_steps + 1) if k % steps_per_frame == 0 or k == n_steps]
-
-
-def join_segments(hier: Hierarchy, segments: list[SegmentResult]) -> tuple[np.ndarray, np.ndarray]:
-    """Frames [T, N, 3] and times [T] of the fine run: the initial state, then every
-    segment's frames in order. Raises if a frame is missing or duplicated."""
-    fine = hier.fine
-    steps = [k for seg in segments for k in seg.frame_steps]
-    expected = serial_frame_steps(fine.num_steps, fine.steps_per_frame)
-    if steps != expected:
-        missing = sorted(set(expected) - set(steps))[:5]
-        extra = sorted(k for k in set(steps) if steps.count(k) > 1 or k not in expected)[:5]
-        raise SimulationError(f"time-parallel segments do not join: missing frames at steps {missing}, duplicated or "
-                              f"unexpected {extra}")
-    frames = [fine.model.initial_state().x.numpy()[None]] + [seg.frames for seg in segments if len(seg.frames)]
-    return np.concatenate(frames), np.asarray([0.0] + [k * fine.dt for k in steps])
 
 
 def simulate_time_parallel(
@@ -333,10 +325,13 @@ def simulate_time_parallel(
         wall = time.perf_counter() - wall0
     finally:
         executor.close()
-    positions, times = join_segments(hier, segments)
+    positions, times, crossfade = join_with_crossfade(hier, segments)
     model = hier.fine.model
     frame_metrics = [state_metrics(model, x, t) for x, t in zip(positions, times)]
     summary = _summary(hier, opts, driver, executor, segments, wall, startup, frame_metrics)
+    summary["parallel"]["crossfade"] = {"seconds": opts.crossfade, "steps": driver.overlap,
+                                        "blended_frames": {str(k): v for k, v in crossfade.blended.items()},
+                                        "replaced_frames": {str(k): v for k, v in crossfade.replaced.items()}}
     return ParallelRunResult(positions, times, summary, frame_metrics, segments=segments, hierarchy=hier)
 
 

@@ -1,6 +1,7 @@
 """One fine segment of a time-parallel run: detail recovery at its start (unless it is the
 first segment, which starts from the scene's exact initial state), then fine steps to its
-end, keeping the frames a serial run would keep in that interval.
+end, keeping the frames a serial run would keep in that interval, and `overlap` steps
+beyond it (frames the join cross-fades with the next segment's first ones).
 
 `segment_run` is a generator so that the same code runs inside a Ray task and in the
 in-process executor: it yields a `Progress` after recovery and after every step, and the
@@ -29,8 +30,10 @@ CoarsePair = tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 @dataclass
 class SegmentSpec:
-    """Segment `index` covers fine steps start..end (end None: decided later). `coarse`
-    holds the coarse (x, v) at the start and one fine step later (None for segment 0)."""
+    """Segment `index` covers fine steps start..end (end None: decided later) and runs
+    `overlap` steps past its end (not past the run's last step) for the join's cross-fade.
+    `coarse` holds the coarse (x, v) at the start and one fine step later (None for
+    segment 0)."""
 
     index: int
     start: int
@@ -39,6 +42,11 @@ class SegmentSpec:
     steps_per_frame: int
     coarse: CoarsePair | None = None
     recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
+    overlap: int = 0
+
+    def stop(self, end: int) -> int:
+        """The last step this segment simulates when its boundary is `end`."""
+        return min(end + self.overlap, self.n_steps)
 
     def frame_steps(self, end: int) -> list[int]:
         """Steps in (start, end] whose states a serial run keeps as frames."""
@@ -62,9 +70,9 @@ class SegmentResult:
     index: int
     start: int
     end: int
-    frame_steps: list[int]
+    frame_steps: list[int]  # steps of `frames`: the serial run's frame steps in (start, end + overlap]
     frames: np.ndarray  # [F, N, 3]
-    x_end: np.ndarray
+    x_end: np.ndarray  # the state at `end` (the boundary, before any overlap)
     v_end: np.ndarray
     step_seconds: list[float]
     recovery: dict
@@ -75,6 +83,11 @@ class SegmentResult:
     setup_seconds: float = 0.0
     retried_steps: int = 0
     fail_safe_used: bool = False
+
+    @property
+    def own_steps(self) -> list[int]:
+        """Frame steps up to the segment's end (the rest is its cross-fade overlap)."""
+        return [k for k in self.frame_steps if k <= self.end]
 
     def to_arrays(self) -> dict:
         """Flat arrays for an npz checkpoint (see `from_arrays`)."""
@@ -144,7 +157,8 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
     k = spec.start
     frames, frame_steps, seconds = [], [], []
     retried, fail_safe = 0, False
-    while end is None or k < end:
+    x_end = v_end = None
+    while end is None or k < spec.stop(end):
         a = time.perf_counter()
         state, stats = solver.step(state, fine.dt)
         seconds.append(time.perf_counter() - a)
@@ -158,12 +172,16 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
         received = yield Progress(spec.index, k, seconds[-1], pid, host)
         if received is not None:
             end = received
-        if end is not None and k > end:
+        if end is not None and k > end and x_end is None:
             raise SimulationError(f"segment {spec.index} was told to end at step {end} after it had reached {k}")
+        if k == end:
+            x_end, v_end = state.x.numpy().copy(), state.v.numpy().copy()
+    if x_end is None:  # a segment with no steps of its own
+        x_end, v_end = state.x.numpy().copy(), state.v.numpy().copy()
     n = fine.model.num_vertices
     return SegmentResult(spec.index, spec.start, int(end), frame_steps,
-                         np.stack(frames) if frames else np.zeros((0, n, 3)), state.x.numpy().copy(),
-                         state.v.numpy().copy(), seconds, rec, x_start, x_up, pid, host, setup, retried, fail_safe)
+                         np.stack(frames) if frames else np.zeros((0, n, 3)), x_end, v_end, seconds, rec, x_start,
+                         x_up, pid, host, setup, retried, fail_safe)
 
 
 def run_segment_to_end(hier: Hierarchy, spec: SegmentSpec) -> SegmentResult:
