@@ -6,7 +6,7 @@ import pytest
 
 from tryon.errors import SceneError
 from tryon.parallel.curvature import relative_curvature_error
-from tryon.parallel.proxy import cluster_decimate, coarse_obstacles, excess_outside, proxy_obstacle
+from tryon.parallel.proxy import cluster_decimate, coarse_obstacles, crop_obstacle, excess_outside, proxy_obstacle
 from tryon.parallel.recovery import oracle_recovery_errors
 from tryon.parallel.hierarchy import build_hierarchy
 from tryon.sim.collision import nearest_surface_points
@@ -49,6 +49,26 @@ def test_proxy_encloses_the_moving_obstacle_and_stays_near_it():
     small = sphere([0, 0, 0], 0.1, subdivisions=1)
     kept, infos = coarse_obstacles([small, ob], 0.05)
     assert kept[0] is small and kept[1].name == "sphere-proxy" and len(infos) == 1
+
+
+def test_crop_keeps_the_obstacle_near_the_cloth_unchanged_at_every_keyframe():
+    ob = _moving_sphere()
+    cloth = np.array([[0.0, 0.0, 0.35], [0.1, 0.0, 0.34], [0.0, 0.1, 0.34]])  # above the top of the sphere
+    near, info = crop_obstacle(ob, cloth, reach=0.15)
+    assert 0 < info["faces"] < len(ob.faces) / 4 and info["cropped"]
+    for t in (0.0, 0.15, 0.3):
+        full, part = ob.vertices_at(t), near.vertices_at(t)
+        tri = part[near.faces]
+        # every kept triangle is one of the obstacle's, where it is at that time
+        keys = {tuple(np.round(full[f].mean(0), 9)) for f in ob.faces}
+        assert all(tuple(np.round(c, 9)) in keys for c in tri.mean(1))
+    d, _, _ = nearest_surface_points(cloth, ob.vertices_at(0.0), ob.faces)
+    dn, _, _ = nearest_surface_points(cloth, near.vertices_at(0.0), near.faces)
+    assert np.allclose(d, dn)  # the cloth's collisions see the same surface
+    kept, infos = coarse_obstacles([ob], "crop", near=cloth)
+    assert kept[0].name == "sphere-near" and infos[0]["faces"] < len(ob.faces)  # CROP_REACH
+    with pytest.raises(SceneError, match="no part of it lies within"):
+        crop_obstacle(ob, cloth + 5.0)
 
 
 def test_recovery_restores_fine_detail_from_exact_coarse_states():

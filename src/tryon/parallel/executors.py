@@ -141,6 +141,12 @@ class _Board:
         self.ends: dict[int, int] = {}
         self.limit = 0
         self.reports: list[Progress] = []
+        self.warm: set[int] = set()
+
+    def arrive(self, pid: int) -> int:
+        """A warmed-up worker process checks in; returns how many distinct ones have."""
+        self.warm.add(pid)
+        return len(self.warm)
 
     def set_end(self, index: int, end: int) -> None:
         self.ends[index] = end
@@ -210,10 +216,14 @@ class RayExecutor:
 
     def warm_up(self, workers: int) -> float:
         """Start the worker processes and load the simulator there (imports, compiled
-        kernels, one fine step); returns the seconds it took (reported apart from the run)."""
+        kernels, one fine step); returns the seconds it took (reported apart from the run).
+        Each warm-up task waits for the others, so that they run in `workers` distinct
+        processes (a fast one would otherwise take the next task, and a segment would
+        start a cold process inside the timed run)."""
         tic = time.perf_counter()
         warm = self._ray.remote(num_cpus=1)(_warm_worker)
-        self._ray.get([warm.remote(self._hier_ref) for _ in range(workers)])
+        together = max(1, min(workers, int(self._ray.cluster_resources().get("CPU", workers))))
+        self._ray.get([warm.remote(self._hier_ref, self._board, together) for _ in range(workers)])
         return time.perf_counter() - tic
 
     def submit(self, spec: SegmentSpec, submissions: int = 1) -> None:
@@ -272,9 +282,11 @@ class RayExecutor:
             ray.shutdown()
 
 
-def _warm_worker(hier: Hierarchy) -> int:
+def _warm_worker(hier: Hierarchy, board=None, workers: int = 1, wait_s: float = 30.0) -> int:
     """Warm-up task: load the simulator's and the recovery's kernels in a worker (one fine
-    step, one obstacle clearance); returns its pid."""
+    step, one obstacle clearance), then check in at `board` and wait (up to `wait_s`)
+    until `workers` distinct processes have; returns its pid."""
+    import ray
     import torch
 
     from tryon.sim.integrator import ImplicitEulerSolver
@@ -287,4 +299,8 @@ def _warm_worker(hier: Hierarchy) -> int:
     ImplicitEulerSolver(fine.model, fine.options).step(state, fine.dt)
     x = state.x.numpy()
     clear_of_obstacles(hier, hier.track(x, hier.restrict(x)), 0.0)  # recovery's kernels and factorisation
+    if board is not None:
+        deadline = time.monotonic() + wait_s
+        while ray.get(board.arrive.remote(os.getpid())) < workers and time.monotonic() < deadline:
+            time.sleep(0.02)
     return os.getpid()

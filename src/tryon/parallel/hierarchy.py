@@ -341,9 +341,10 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
     grids and 1.5 for garments. The fine level runs at the scene's dt, the coarse one at
     `dt_ratio` times it (None: `GARMENT_DT_RATIO` for garment animations, 1 otherwise).
     `obstacle_cell` (m) replaces the coarse garment's body by a decimated, inflated proxy
-    near the garment (`tryon.parallel.proxy`; e.g. 0.03; "auto" and None: the real
-    obstacles, which measured better: see docs/PARALLEL.md)."""
-    if obstacle_cell is not None and obstacle_cell != "auto" and not float(obstacle_cell) > 0:
+    near the garment (`tryon.parallel.proxy`; e.g. 0.03, which measured worse: see
+    docs/PARALLEL.md); "auto" (and "crop") keeps the real body's triangles within
+    `proxy.CROP_REACH` of the garment, unchanged; None the whole body."""
+    if obstacle_cell not in (None, "auto", "crop") and not float(obstacle_cell) > 0:
         raise SceneError(f"the coarse obstacle cell size must be positive, got {obstacle_cell}")
     spec = scene.spec or {}
     garment = "animation" in spec
@@ -366,7 +367,7 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
         raise SceneError(f"the coarsening factor must be larger than 1, got {factor}")
     proxies: list = []
     if garment:
-        cell = None if obstacle_cell == "auto" else obstacle_cell
+        cell = "crop" if obstacle_cell == "auto" else obstacle_cell
         coarse_model, U, proxies = _coarser_garment(scene, factor, cell)
     elif grid:
         coarse_model, U = _coarser_grid(scene, factor)
@@ -410,7 +411,7 @@ def _coarser_grid(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_matri
 def _coarser_garment(scene: Scene, factor: float, cell: float | None) -> tuple[ClothModel, sp.csr_matrix, list]:
     """The coarse level of a garment animation (`tryon.drape.animate.animation_scene`):
     its drape's sewing pattern at `factor` times the drape's edge length, colliding with
-    body proxies of `cell` metres (None: with the real body)."""
+    body proxies of `cell` metres ("crop": the body near the garment; None: the whole body)."""
     from tryon.parallel.proxy import coarse_obstacles
 
     from tryon.drape.animate import load_drape

@@ -2,8 +2,9 @@
 
 On a garment animation both levels collide against the same body mesh (~14k vertices),
 so the body's collision work is the same at both resolutions and the fine-to-coarse cost
-ratio K stays small. The coarse level only predicts the cloth's coarse-scale motion, so
-it collides against a proxy: the body decimated by vertex clustering (every vertex
+ratio K stays small. By default the coarse level collides with the body's triangles near
+the garment, unchanged (`crop_obstacle`). Opt-in, it collides against a proxy: the body
+decimated by vertex clustering (every vertex
 replaced by the mean of its grid cell, degenerate and repeated triangles dropped) and
 inflated along its vertex normals until it encloses the original body (the part within
 reach of the garment) at the keyframes, so a coarse cloth outside the proxy is outside
@@ -24,6 +25,7 @@ from tryon.sim.collision import nearest_surface_points
 from tryon.sim.obstacles import Motion, Obstacle
 
 MIN_FACES = 2000  # obstacles with fewer triangles are kept as they are
+CROP_REACH = 0.15  # m: the body near a garment, kept for the coarse level (a walk's thighs and arms included)
 
 
 def cluster_decimate(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -120,16 +122,40 @@ def proxy_obstacle(ob: Obstacle, cell: float, near: np.ndarray | None = None, re
     return Obstacle(f"{ob.name}-proxy", proxy[0], faces, motion), info
 
 
-def coarse_obstacles(obstacles: list[Obstacle], cell: float | None, near: np.ndarray | None = None,
+def crop_obstacle(ob: Obstacle, near: np.ndarray, reach: float = CROP_REACH) -> tuple[Obstacle, dict]:
+    """The part of a mesh obstacle within `reach` of the cloth at the start, unchanged:
+    its triangles whose three vertices lie that close (the same ones at every keyframe), on
+    the vertices they use. Collisions of cloth that stays within reach are those against
+    the whole obstacle; the work per step that grows with the obstacle's size shrinks."""
+    frames, times = _frames(ob)
+    dist, _ = cKDTree(np.asarray(near, np.float64)).query(frames[0])
+    faces = np.asarray(ob.faces, np.int64)
+    faces = faces[(dist < reach)[faces].all(1)]
+    if len(faces) == 0:
+        raise SceneError(f"obstacle {ob.name}: no part of it lies within {reach} m of the cloth")
+    used = np.unique(faces)
+    remap = np.full(len(frames[0]), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    cropped = frames[:, used]
+    motion = Motion(keyframes=cropped, keyframe_times=times) if times is not None else ob.motion
+    info = {"name": ob.name, "vertices": int(len(used)), "faces": int(len(faces)),
+            "original_vertices": int(len(frames[0])), "original_faces": int(len(ob.faces)), "reach_m": float(reach),
+            "cropped": True}
+    return Obstacle(f"{ob.name}-near", cropped[0], remap[faces], motion), info
+
+
+
+def coarse_obstacles(obstacles: list[Obstacle], cell: float | str | None, near: np.ndarray | None = None,
                      reach: float = 0.1) -> tuple[list[Obstacle], list[dict]]:
-    """Every mesh obstacle with at least `MIN_FACES` triangles replaced by its proxy
-    (`cell` None keeps them all)."""
+    """Every mesh obstacle with at least `MIN_FACES` triangles replaced by its proxy of
+    `cell` metres, or with `cell` "crop" by its part near the cloth (`crop_obstacle`;
+    needs `near`); `cell` None keeps them all."""
     if cell is None:
         return list(obstacles), []
     out, infos = [], []
     for ob in obstacles:
         if len(ob.faces) >= MIN_FACES:
-            proxy, info = proxy_obstacle(ob, cell, near, reach)
+            proxy, info = crop_obstacle(ob, near) if cell == "crop" else proxy_obstacle(ob, cell, near, reach)
             out.append(proxy)
             infos.append(info)
         else:
