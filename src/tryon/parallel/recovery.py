@@ -15,10 +15,13 @@ v = u(V_c(t_s)), it alternates
 for at most n = ceil(c0 sqrt(m / xi) / dt) iterations (c0 = 10, m the areal density, xi
 the norm of the fabric's membrane stiffness at rest; sqrt(m / xi) is the time a membrane
 wave needs to cross a metre of cloth), or until the RMS vertex change of an iteration
-falls below `tolerance` times the cloth size. Vertices the upsampled shape or an
-iteration puts into an obstacle are pushed out (`push_outside`); the recovered state
-is made free of cloth-obstacle crossings (`clear_of_obstacles`) so that the fine
-segment's collision handling can start from it. Detail velocities are dropped
+falls below `tolerance` times the cloth size. Vertices the upsampled shape puts into an
+obstacle are pushed out (`push_outside`); when the start is free of crossings, the
+projection and the step back to t_s are moved to as collision-handled motions
+(`collision_free_move`: the simulator's CCD and impact zones, obstacles moving back to
+t_s), so that no iteration puts cloth through cloth or body; the recovered state is
+made free of cloth-obstacle crossings (`clear_of_obstacles`) so that the fine segment's
+collision handling can start from it. Detail velocities are dropped
 (`keep_detail_velocity` = 0): the recovered state moves with the coarse velocity.
 """
 
@@ -34,7 +37,7 @@ import torch
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.sim.collision import count_intersections, nearest_surface_points
+from tryon.sim.collision import count_intersections, nearest_surface_points, resolve_collisions
 from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.model import ClothState
@@ -158,6 +161,21 @@ def _with_one_ring(faces: np.ndarray, vertices: np.ndarray, n: int) -> np.ndarra
     return np.flatnonzero(mark)
 
 
+def collision_free_move(hier: Hierarchy, x0: np.ndarray, x1: np.ndarray, t0: float, t1: float) -> np.ndarray | None:
+    """The move of the fine cloth from x0 (free of intersections, obstacles at t0) towards
+    x1 (obstacles at t1) with the simulator's collision response (continuous collision
+    detection, impact zones): positions as close to x1 as the move allows without any
+    cloth passing through cloth or obstacle; None if the response does not succeed."""
+    m = hier.fine.model
+    pinned = np.zeros(m.num_vertices, bool)
+    pinned[m.pinned.numpy()] = True
+    x, report = resolve_collisions(
+        x0, x1, m.mass().detach().numpy(), m.faces.numpy(), m.edges.numpy(), m.obstacles.vertices_at(t0),
+        m.obstacles.vertices_at(t1), m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
+        pinned_mask=pinned, self_collision=m.collision.self_collision)
+    return x if report.success and np.all(np.isfinite(x)) else None
+
+
 def start_positions(hier: Hierarchy, xc: np.ndarray, t: float, push: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Fine positions u(X_c) (pinned vertices on their handles, with `push` moved out of the
     obstacles) and the fraction of the carried detail kept at each vertex. The detail was
@@ -223,17 +241,23 @@ def recover_details(
         except SimulationError as exc:
             report.failed = str(exc)
             break
-        x = hier.track(stepped.x.numpy(), target)
+        x1 = stepped.x.numpy()
+        x = hier.track(x1, target)
         v = hier.track(stepped.v.numpy(), vc1)
         if len(pinned):
             x[pinned] = model.pin_targets(t + dt).numpy()
-        x, v = push_outside(hier, x - dX, t), v - dV
+        if clean:  # move to the projection, then back to t, as collision-handled motions
+            x = collision_free_move(hier, x1, x, t + dt, t + dt)
+            x = collision_free_move(hier, x, x - dX, t + dt, t) if x is not None else None
+            if x is None:
+                report.stopped = "collision handling could not follow the tracking projection; kept the last iterate"
+                break
+        else:
+            x = push_outside(hier, x - dX, t)
+        v = v - dV
         if options.keep_detail_velocity < 1.0:
             v_coarse = hier.upsample(vc0)
             v = v_coarse + options.keep_detail_velocity * (v - v_coarse)
-        if clean and len(self_intersecting_vertices(hier, x)):
-            report.stopped = "the tracking projection put the cloth through itself; kept the last clean iterate"
-            break
         change = float(np.sqrt(np.mean(np.sum((x - state.x.numpy()) ** 2, 1))))
         state = ClothState(torch.from_numpy(x), torch.from_numpy(v), t)
         report.iterations += 1
