@@ -86,26 +86,28 @@ def test_recovery_restores_fine_detail_from_exact_coarse_states():
                                            rel=0.3)
 
 
-def test_recovery_on_folded_cloth_moves_by_collision_handled_steps():
-    """Over the sphere the 33x33 cloth has folded by step 50: the tracking projection of
-    its states would put it through itself; moved to with collision handling, recovery
-    iterates, lowers the curvature error and leaves no crossing."""
-    from tryon.parallel.recovery import obstacle_crossings, recover_details, self_intersecting_vertices
+def test_recovery_moves_are_collision_handled():
+    """`collision_free_move`, which recovery uses for its tracking projections: a patch of
+    a folded cloth's upper layer poked through the lower one, and the cloth pushed into
+    the sphere, end with neither layer nor body passed through."""
+    from tryon.parallel.recovery import collision_free_move, obstacle_crossings, self_intersecting_vertices
 
-    scene = example_scene("sphere-drop", 33, duration=0.6)
-    h = build_hierarchy(scene, "coarsen")
-    solver = ImplicitEulerSolver(h.fine.model, h.fine.options)
-    state = h.fine.model.initial_state()
-    xs = [state.x.numpy()]
-    for _ in range(51):
-        state, _ = solver.step(state, h.fine.dt)
-        xs.append(state.x.numpy())
-    dt, k = h.fine.dt, 50
-    start = (h.coarse_state_of(xs[k]), h.restrict((xs[k] - xs[k - 1]) / dt))
-    nxt = (h.coarse_state_of(xs[k + 1]), h.restrict((xs[k + 1] - xs[k]) / dt))
-    recovered, report = recover_details(solver, h, start, nxt, k * dt, dt)
-    x = recovered.x.numpy()
-    assert report.iterations >= 2 and not report.stopped, (report.iterations, report.stopped)
-    assert len(self_intersecting_vertices(h, x)) == 0 and obstacle_crossings(h, x, k * dt) == 0
-    before = relative_curvature_error(h.fine.model, report.start, xs[k])
-    assert relative_curvature_error(h.fine.model, x, xs[k]) < 0.9 * before
+    h = build_hierarchy(example_scene("sphere-drop", 13, duration=0.1), "coarsen")
+    flat = h.fine.model.initial_state().x.numpy()  # 1 m square at z = 0.3 over a sphere of radius 0.25
+    upper = flat[:, 0] > 1e-9
+    folded = flat.copy()  # folded over along x = 0, the upper layer 6 cm above the lower one
+    folded[upper, 0] = -flat[upper, 0]
+    folded[upper, 2] += 0.06 * np.minimum(1.0, flat[upper, 0] / 0.15)
+    assert len(self_intersecting_vertices(h, folded)) == 0
+    patch = upper & (flat[:, 0] > 0.2) & (flat[:, 0] < 0.4) & (np.abs(flat[:, 1]) < 0.15)
+    poked = folded.copy()
+    poked[patch, 2] -= 0.08
+    assert len(self_intersecting_vertices(h, poked)) > 0
+    moved = collision_free_move(h, folded, poked, 0.0, 0.0)
+    assert moved is not None and len(self_intersecting_vertices(h, moved)) == 0
+    below = np.array([np.argmin(np.linalg.norm(flat[:, :2] - folded[i, :2], axis=1)) for i in np.flatnonzero(patch)])
+    assert np.all(moved[patch, 2] > moved[below, 2])  # the patch still lies on top of the lower layer
+    pushed = flat - [0.0, 0.0, 0.06]
+    assert obstacle_crossings(h, pushed, 0.0) > 0
+    moved = collision_free_move(h, flat, pushed, 0.0, 0.0)
+    assert moved is not None and obstacle_crossings(h, moved, 0.0) == 0
