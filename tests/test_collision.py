@@ -303,6 +303,23 @@ def test_proximity_matches_brute_force():
     assert len(fv) > 0 and np.all(np.abs(fv.d) < H)
 
 
+def test_obstacle_normals_near_faces_equal_the_whole_obstacles_there():
+    from tryon.sim.collision.geometry import obstacle_normals, obstacle_normals_near
+
+    ob, ob_faces, ob_edges = ball([0.0, 0.0, 0.0], 0.3, subdivisions=3)
+    ob = ob * [1.0, 0.7, 1.3]  # not a sphere: normals differ from the radial direction
+    vn, en = obstacle_normals(ob, ob_faces, ob_edges)
+    picked = np.random.default_rng(0).choice(len(ob_faces), 8, replace=False)
+    near_vn, near_en = obstacle_normals_near(ob, ob_faces, ob_edges, np.concatenate([picked, picked[:3]]))
+    verts = np.unique(ob_faces[picked])
+    lookup = {tuple(e): i for i, e in enumerate(ob_edges.tolist())}
+    used = [lookup[tuple(sorted(p))] for f in ob_faces[picked] for p in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))]
+    assert np.allclose(near_vn[verts], vn[verts], atol=1e-12) and np.allclose(near_en[used], en[used], atol=1e-12)
+    assert np.abs(near_vn).sum(1).astype(bool).sum() < len(ob) / 2  # the rest of the obstacle was not visited
+    empty_vn, _ = obstacle_normals_near(ob, ob_faces, ob_edges, np.zeros(0, np.int64))
+    assert not empty_vn.any()
+
+
 def test_proximity_flat_sheet_has_no_self_contacts_and_obstacle_normals_point_out():
     x, f, e = sheet(30, 0.1, 0.0)  # spacing 3.4 mm < thickness: in-plane neighbours are no contacts
     gx, gf, ge = ground(z=-0.002)

@@ -42,7 +42,7 @@ from tryon.sim.collision.contacts import (
     check_finite,
     check_thickness,
 )
-from tryon.sim.collision.geometry import obstacle_normals
+from tryon.sim.collision.geometry import obstacle_normals_near
 from tryon.sim.collision.topology import face_tree, mesh_topology
 from tryon.sim.collision.primitives import (
     INSIDE_TOL,
@@ -342,10 +342,10 @@ def find_proximities(
         parts.append(run_driver(self_proximities, pairs, x, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, h))
     if len(ob) and len(ob_faces):
         ob_topo = mesh_topology(ob_faces, ob_edges, len(ob))
-        ob_vn, ob_en = obstacle_normals(ob, ob_faces, ob_edges)
         ob_bx = mesh_boxes(ob, ob_faces, ob_edges, h)
         ob_tris = face_tree(ob_faces, ob_bx[4] - 0.5 * h, ob_bx[5] + 0.5 * h)
         pairs = overlapping_pairs(tris, ob_tris)
+        ob_vn, ob_en = obstacle_normals_near(ob, ob_faces, ob_edges, pairs[:, 1])  # only where the pairs look
         parts.append(run_driver(
             obstacle_proximities, pairs, x, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, ob, ob_faces,
             ob_edges, ob_topo.own_vertices, ob_topo.own_edges, ob_topo.n_own_vertices, ob_topo.n_own_edges, ob_bx, ob_vn, ob_en, h,
