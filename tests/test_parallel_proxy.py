@@ -93,6 +93,7 @@ def test_recovery_moves_are_collision_handled():
     from tryon.parallel.recovery import collision_free_move, obstacle_crossings, self_intersecting_vertices
 
     h = build_hierarchy(example_scene("sphere-drop", 13, duration=0.1), "coarsen")
+    solver = ImplicitEulerSolver(h.fine.model, h.fine.options)
     flat = h.fine.model.initial_state().x.numpy()  # 1 m square at z = 0.3 over a sphere of radius 0.25
     upper = flat[:, 0] > 1e-9
     folded = flat.copy()  # folded over along x = 0, the upper layer 6 cm above the lower one
@@ -103,11 +104,11 @@ def test_recovery_moves_are_collision_handled():
     poked = folded.copy()
     poked[patch, 2] -= 0.08
     assert len(self_intersecting_vertices(h, poked)) > 0
-    moved = collision_free_move(h, folded, poked, 0.0, 0.0)
+    moved = collision_free_move(solver, folded, poked, 0.0, 0.0)
     assert moved is not None and len(self_intersecting_vertices(h, moved)) == 0
     below = np.array([np.argmin(np.linalg.norm(flat[:, :2] - folded[i, :2], axis=1)) for i in np.flatnonzero(patch)])
     assert np.all(moved[patch, 2] > moved[below, 2])  # the patch still lies on top of the lower layer
     pushed = flat - [0.0, 0.0, 0.06]
     assert obstacle_crossings(h, pushed, 0.0) > 0
-    moved = collision_free_move(h, flat, pushed, 0.0, 0.0)
+    moved = collision_free_move(solver, flat, pushed, 0.0, 0.0)
     assert moved is not None and obstacle_crossings(h, moved, 0.0) == 0

@@ -31,6 +31,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from tryon.errors import SceneError
+from tryon.parallel.proxy import vertex_normals
 from tryon.sim.mesh import ClothMesh
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
 from tryon.sim.model import ClothModel, ClothState, PinGroup
@@ -187,12 +188,7 @@ def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
 def vertex_frames(X: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """[N, 3, 3] orthonormal frames (columns: tangent, bitangent, normal) at mesh vertices:
     the area-weighted normal and the direction to a fixed neighbour projected off it."""
-    e1, e2 = X[faces[:, 1]] - X[faces[:, 0]], X[faces[:, 2]] - X[faces[:, 0]]
-    face_normal = np.cross(e1, e2)
-    n = np.zeros_like(X)
-    for k in range(3):
-        np.add.at(n, faces[:, k], face_normal)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n = vertex_normals(X, faces)
     neighbour = np.arange(len(X))
     for k in range(3):
         neighbour[faces[:, k]] = faces[:, (k + 1) % 3]

@@ -37,7 +37,7 @@ import torch
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.sim.collision import count_intersections, nearest_surface_points, resolve_collisions
+from tryon.sim.collision import count_intersections, nearest_surface_points
 from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.model import ClothState
@@ -161,18 +161,14 @@ def _with_one_ring(faces: np.ndarray, vertices: np.ndarray, n: int) -> np.ndarra
     return np.flatnonzero(mark)
 
 
-def collision_free_move(hier: Hierarchy, x0: np.ndarray, x1: np.ndarray, t0: float, t1: float) -> np.ndarray | None:
-    """The move of the fine cloth from x0 (free of intersections, obstacles at t0) towards
-    x1 (obstacles at t1) with the simulator's collision response (continuous collision
+def collision_free_move(solver: ImplicitEulerSolver, x0: np.ndarray, x1: np.ndarray, t0: float,
+                        t1: float) -> np.ndarray | None:
+    """The move of the solver's cloth from x0 (free of intersections, obstacles at t0)
+    towards x1 (obstacles at t1) with its collision response (continuous collision
     detection, impact zones): positions as close to x1 as the move allows without any
     cloth passing through cloth or obstacle; None if the response does not succeed."""
-    m = hier.fine.model
-    pinned = np.zeros(m.num_vertices, bool)
-    pinned[m.pinned.numpy()] = True
-    x, report = resolve_collisions(
-        x0, x1, m.mass().detach().numpy(), m.faces.numpy(), m.edges.numpy(), m.obstacles.vertices_at(t0),
-        m.obstacles.vertices_at(t1), m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
-        pinned_mask=pinned, self_collision=m.collision.self_collision)
+    obstacles = solver.model.obstacles
+    x, report = solver.collision_response(x0, x1, obstacles.vertices_at(t0), obstacles.vertices_at(t1))
     return x if report.success and np.all(np.isfinite(x)) else None
 
 
@@ -247,8 +243,8 @@ def recover_details(
         if len(pinned):
             x[pinned] = model.pin_targets(t + dt).numpy()
         if clean:  # move to the projection, then back to t, as collision-handled motions
-            x = collision_free_move(hier, x1, x, t + dt, t + dt)
-            x = collision_free_move(hier, x, x - dX, t + dt, t) if x is not None else None
+            x = collision_free_move(solver, x1, x, t + dt, t + dt)
+            x = collision_free_move(solver, x, x - dX, t + dt, t) if x is not None else None
             if x is None:
                 report.stopped = "collision handling could not follow the tracking projection; kept the last iterate"
                 break

@@ -293,12 +293,18 @@ class ImplicitEulerSolver:
         blocks = lump[..., None, None] * tangent[:, None]
         add_diagonal_blocks(D, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[sel]))
 
-    def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
+    def collision_response(self, x0: np.ndarray, x1: np.ndarray, ob0: np.ndarray, ob1: np.ndarray):
+        """`resolve_collisions` of the move x0 -> x1 (obstacles ob0 -> ob1) with this model's
+        masses, topology, pins and thickness: (positions, report)."""
         m = self.model
-        x_fixed, report = col.resolve_collisions(
+        return col.resolve_collisions(
             x0, x1, self.mass, self._faces_np, self._edges_np, ob0, ob1, m.obstacles.faces, m.obstacles.edges,
             m.collision.thickness, pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
         )
+
+    def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
+        m = self.model
+        x_fixed, report = self.collision_response(x0, x1, ob0, ob1)
         stats.impacts = report.impacts_found
         stats.collision_iterations = report.iterations
         if report.success and np.all(np.isfinite(x_fixed)):

@@ -13,6 +13,7 @@ import numpy as np
 import trimesh
 
 from tryon.errors import SceneError
+from tryon.sim.collision.geometry import mesh_edges
 
 
 @dataclass
@@ -162,11 +163,6 @@ def _orient_faces(verts: np.ndarray, faces: np.ndarray, normal: np.ndarray) -> n
     return faces
 
 
-def _mesh_edges(faces: np.ndarray) -> np.ndarray:
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
-
-
 class ObstacleSet:
     """All obstacles of a scene merged into one triangle soup with fixed topology."""
 
@@ -176,7 +172,7 @@ class ObstacleSet:
         self._offsets = offsets
         faces = [o.faces + off for o, off in zip(self.obstacles, offsets[:-1])]
         self.faces = np.concatenate(faces).astype(np.int64) if faces else np.zeros((0, 3), np.int64)
-        self.edges = _mesh_edges(self.faces) if len(self.faces) else np.zeros((0, 2), np.int64)
+        self.edges = mesh_edges(self.faces) if len(self.faces) else np.zeros((0, 2), np.int64)
         self.static = all(o.motion.is_static() for o in self.obstacles)
         self._static_vertices = self._merge(0.0) if self.static else None
 

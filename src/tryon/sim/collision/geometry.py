@@ -120,19 +120,23 @@ def _pseudonormals(x, faces, fe, n_edges):
     return vn, en
 
 
+def mesh_edges(faces: np.ndarray) -> np.ndarray:
+    """The unique edges [E,2] (sorted vertex pairs) of a triangle mesh."""
+    pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(pairs, axis=1), axis=0)
+
+
 _EDGES_CACHE: dict = {}
 
 
 def cached_mesh_edges(faces: np.ndarray) -> np.ndarray:
-    """The unique edges [E,2] (sorted vertex pairs) of a triangle mesh, memoised on its
-    topology (an obstacle's faces do not change during a run)."""
+    """`mesh_edges`, memoised on the topology (an obstacle's faces do not change during a run)."""
     key = (faces.shape, hash(faces.tobytes()))
     edges = _EDGES_CACHE.get(key)
     if edges is None:
         if len(_EDGES_CACHE) >= 8:
             _EDGES_CACHE.pop(next(iter(_EDGES_CACHE)))
-        pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-        edges = np.ascontiguousarray(np.unique(np.sort(pairs, 1), axis=0))
+        edges = np.ascontiguousarray(mesh_edges(faces))
         _EDGES_CACHE[key] = edges
     return edges
 

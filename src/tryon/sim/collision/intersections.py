@@ -10,7 +10,7 @@ import numpy as np
 
 from tryon.sim.collision.bvh import BVH, _box_dist2, element_boxes, overlapping_pairs
 from tryon.sim.collision.contacts import as_index, as_points, check_finite
-from tryon.sim.collision.geometry import cached_face_edge_ids, cached_mesh_edges, face_normals, obstacle_normals
+from tryon.sim.collision.geometry import cached_face_edge_ids, cached_mesh_edges, face_normals, obstacle_normals_near
 from tryon.sim.collision.primitives import jit, point_triangle_distance, row, segment_triangle_intersect
 from tryon.sim.collision.proximity import prepare_inputs
 
@@ -160,7 +160,7 @@ def _pseudonormal(ob: np.ndarray, ob_faces: np.ndarray, face: np.ndarray, bary: 
     on_vertex, on_edge = n_zero == 2, n_zero == 1
     if on_vertex.any() or on_edge.any():
         edges = cached_mesh_edges(ob_faces)
-        vn, en = obstacle_normals(ob, ob_faces, edges)
+        vn, en = obstacle_normals_near(ob, ob_faces, edges, face[on_vertex | on_edge])
         if on_vertex.any():
             corner = np.argmax(bary[on_vertex], 1)
             out[on_vertex] = vn[ob_faces[face[on_vertex], corner]]
