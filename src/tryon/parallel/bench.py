@@ -35,6 +35,7 @@ from tryon.parallel.coarse import CoarseRun
 from tryon.parallel.curvature import relative_curvature_error
 from tryon.parallel.driver import ParallelOptions, simulate_time_parallel
 from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
+from tryon.parallel.join import plain_join
 from tryon.parallel.recovery import RecoveryOptions, oracle_recovery_errors
 from tryon.parallel.partition import balanced_cuts, speedup_bounds, uniform_cuts
 from tryon.sim.integrator import ImplicitEulerSolver
@@ -147,11 +148,9 @@ def popping(result, states: np.ndarray) -> dict:
     without the cross-fade (the latter joins the segments' own frames, as with
     --crossfade 0), next to the median excess away from boundaries and the serial run's
     mean motion per frame (segment 0, exactly the serial run, left out of the median)."""
-    hier, segs = result.hierarchy, result.segments
-    fine = hier.fine
-    steps = [0] + [k for s in segs for k in s.own_steps]
+    segs = result.segments
+    steps, plain = plain_join(result.hierarchy, segs)
     serial = states[steps]
-    plain = np.concatenate([fine.model.initial_state().x.numpy()[None]] + [s.frames[: len(s.own_steps)] for s in segs])
     span = result.summary["parallel"]["crossfade"]["steps"]
     near = np.zeros(len(steps) - 1, bool)
     windows = []
@@ -276,9 +275,8 @@ def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, p
     segs = result.segments
     k = next(i for i, s in enumerate(segs) if s.x_upsampled is not None)
     seg = segs[k]
-    steps = [0] + [s for g in segs for s in g.own_steps]
-    plain = dict(zip(steps, [result.positions[0]] + [x for g in segs for x in g.frames[: len(g.own_steps)]]))
-    joined = dict(zip(steps, result.positions))
+    steps, own = plain_join(hier, segs)
+    plain, joined = dict(zip(steps, own)), dict(zip(steps, result.positions))
     first = int(np.searchsorted(steps, seg.start + 1))
     span = result.summary["parallel"]["crossfade"]["steps"]
     last = min(int(np.searchsorted(steps, seg.start + span)), len(steps) - 1)

@@ -47,10 +47,6 @@ def crossfade_weight(step: int, boundary: int, span: int) -> float:
     return u * u * (3.0 - 2.0 * u)
 
 
-def _own_frames(seg: SegmentResult) -> list[tuple[int, np.ndarray]]:
-    return [(k, x) for k, x in zip(seg.frame_steps, seg.frames) if k <= seg.end]
-
-
 def _blend(hier: Hierarchy, earlier: np.ndarray, later: np.ndarray, w: float, t: float) -> tuple[np.ndarray, bool]:
     """(frame, replaced): the blend, made clear of obstacles, or `later` if it self-crosses."""
     x = (1.0 - w) * earlier + w * later
@@ -67,30 +63,36 @@ def join_segments(hier: Hierarchy, segments: list[SegmentResult]) -> tuple[np.nd
     return positions, times
 
 
-def join_with_crossfade(hier: Hierarchy, segments: list[SegmentResult]) -> tuple[np.ndarray, np.ndarray, CrossfadeReport]:
-    """The initial state, then every segment's own frames in order, with the frames just
-    after each boundary cross-faded from the previous segment's overlap frames (where it
-    ran past its end). Raises if a frame is missing or duplicated."""
+def plain_join(hier: Hierarchy, segments: list[SegmentResult]) -> tuple[list[int], np.ndarray]:
+    """Steps [T] (0 first) and frames [T, N, 3]: the initial state, then every segment's own
+    frames (up to its end) in order, as with no cross-fade. Raises if a frame is missing
+    or duplicated."""
     fine = hier.fine
-    own = [_own_frames(seg) for seg in segments]
-    steps = [k for frames in own for k, _ in frames]
+    steps = [k for seg in segments for k in seg.own_steps]
     expected = serial_frame_steps(fine.num_steps, fine.steps_per_frame)
     if steps != expected:
         missing = sorted(set(expected) - set(steps))[:5]
         extra = sorted(k for k in set(steps) if steps.count(k) > 1 or k not in expected)[:5]
         raise SimulationError(f"time-parallel segments do not join: missing frames at steps {missing}, duplicated or "
                               f"unexpected {extra}")
+    frames = [fine.model.initial_state().x.numpy()[None]] + [seg.frames[: len(seg.own_steps)] for seg in segments]
+    return [0] + steps, np.concatenate(frames)
+
+
+def join_with_crossfade(hier: Hierarchy, segments: list[SegmentResult]) -> tuple[np.ndarray, np.ndarray, CrossfadeReport]:
+    """`plain_join`, with the frames just after each boundary cross-faded from the previous
+    segment's overlap frames (where it ran past its end)."""
+    fine = hier.fine
+    steps, joined = plain_join(hier, segments)
+    index = {k: i for i, k in enumerate(steps)}
     report = CrossfadeReport()
-    joined = [fine.model.initial_state().x.numpy()]
-    for j, seg in enumerate(segments):
-        prev = segments[j - 1] if j > 0 else None
-        overlap = {k: x for k, x in zip(prev.frame_steps, prev.frames) if k > prev.end} if prev is not None else {}
+    for prev, seg in zip(segments[:-1], segments[1:]):
+        overlap = {k: x for k, x in zip(prev.frame_steps, prev.frames) if k > prev.end}
         span = min(max(overlap, default=seg.start), seg.end) - seg.start  # w reaches 1 within this segment
-        for k, x in own[j]:
+        for k in seg.own_steps:
             if k in overlap and k < seg.start + span:
                 w = crossfade_weight(k, seg.start, span)
-                x, replaced = _blend(hier, overlap[k], x, w, k * fine.dt)
+                joined[index[k]], replaced = _blend(hier, overlap[k], joined[index[k]], w, k * fine.dt)
                 report.blended[seg.start] = report.blended.get(seg.start, 0) + 1
                 report.replaced[seg.start] = report.replaced.get(seg.start, 0) + int(replaced)
-            joined.append(x)
-    return np.stack(joined), np.asarray([0.0] + [k * fine.dt for k in steps]), report
+    return joined, np.asarray(steps) * fine.dt, report

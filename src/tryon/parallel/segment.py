@@ -48,12 +48,6 @@ class SegmentSpec:
         """The last step this segment simulates when its boundary is `end`."""
         return min(end + self.overlap, self.n_steps)
 
-    def frame_steps(self, end: int) -> list[int]:
-        """Steps in (start, end] whose states a serial run keeps as frames."""
-        ks = np.arange(self.start + 1, end + 1)
-        keep = (ks % self.steps_per_frame == 0) | (ks == self.n_steps)
-        return [int(k) for k in ks[keep]]
-
 
 @dataclass
 class Progress:
