@@ -248,6 +248,9 @@ def plot_scheduler(predictions: list[dict], path: Path) -> None:
                 axes[0].plot(P, [speedup_bounds(K, p)["balanced"] for p in P], ":", color="gray")
     axes[0].set(xscale="log", yscale="log", xlabel="workers P", ylabel="predicted speedup",
                 title="scheduler simulation (dotted: K(1-(1-1/K)^P))")
+    plain = matplotlib.ticker.ScalarFormatter()  # 2.5, not 2.5 x 10^0, on a log axis spanning less than a decade
+    axes[0].yaxis.set_major_formatter(plain)
+    axes[0].yaxis.set_minor_formatter(plain)
     axes[1].set(xscale="log", xlabel="workers P", ylabel="efficiency (speedup / P)")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
