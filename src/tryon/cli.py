@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from tryon.errors import TryonError
+from tryon.io.atomic import check_output_dir
 
 DEFAULT_GRIDS = [16, 32, 64, 128]
 
@@ -18,6 +19,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     if args.example and args.scene:
         raise TryonError("give either a SCENE.yaml or --example NAME, not both")
+    _check_positive(args, "dt", "duration")
+    if args.out is not None:
+        check_output_dir(args.out, force=args.force)
     if args.example:
         if args.dump:
             import yaml
@@ -27,9 +31,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         scene = example_scene(args.example, args.resolution, dt=args.dt, duration=args.duration, fabric=args.fabric)
     elif args.scene:
         scene = load_scene(args.scene)
-        if args.dt or args.duration or args.fabric:
+        if args.dt is not None or args.duration is not None or args.fabric:
             spec = dict(scene.spec)
-            spec.update({k: v for k, v in (("dt", args.dt), ("duration", args.duration)) if v})
+            spec.update({k: v for k, v in (("dt", args.dt), ("duration", args.duration)) if v is not None})
             if args.fabric:
                 spec["cloth"] = dict(spec["cloth"], fabric=args.fabric)
             scene = parse_scene(spec, Path(args.scene).parent, scene.name)
@@ -37,14 +41,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise TryonError("give a SCENE.yaml or --example NAME (hanging, sphere-drop, table, pyramid)")
     if args.linear_solver:
         scene.options.linear_solver = args.linear_solver
-    out = Path(args.out or f"out/{scene.name}")
+    out = check_output_dir(args.out or f"out/{scene.name}", force=args.force)
     if args.parallel == "time":
         from tryon.parallel import run_scene_time_parallel
 
         result = run_scene_time_parallel(scene, out, progress=not args.quiet, resume=args.resume,
-                                         write_objs=not args.no_obj, options=_parallel_options(args))
+                                         write_objs=not args.no_obj, options=_parallel_options(args), force=args.force)
     else:
-        result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj)
+        result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj,
+                           force=args.force)
     s = result.summary
     print(
         f"{scene.name}: {s['steps']} steps in {s['wall_s']:.1f} s ({s['s_per_step'] * 1000:.1f} ms/step), "
@@ -52,6 +57,18 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         f"min obstacle distance {s['min_obstacle_distance'] * 1000:.2f} mm -> {out}"
     )
     return 0
+
+
+def _check_positive(args: argparse.Namespace, *names: str) -> None:
+    for name in names:
+        value = getattr(args, name)
+        if value is not None and not (value > 0 and value < float("inf")):
+            raise TryonError(f"--{name.replace('_', '-')} must be a positive number of seconds, got {value}")
+
+
+def _force_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --out folder even if tryon did not write it (never /, ~, . or its parents)")
 
 
 def _measurements(args: argparse.Namespace):
@@ -66,11 +83,16 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     from tryon.drape.outputs import write_outputs
 
     size = None if args.size.lower() in ("mtm", "made-to-measure") else args.size
+    out = check_output_dir(args.out, force=args.force)
     req = DrapeRequest(_measurements(args), garment=args.garment, size=size, fabric=args.fabric,
                        edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time)
+    req.validate()
+    if req.garment_obj is not None:  # a malformed garment is reported before the body is fitted
+        from tryon.garment.obj_garment import garment_from_obj
+
+        garment_from_obj(req.garment_obj)
     result = drape(req, progress=not args.quiet)
-    out = Path(args.out)
-    rep = write_outputs(result, out)
+    rep = write_outputs(result, out, force=args.force)
     a, b = rep["body"]["achieved"], rep["body"]["asked"]
     print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
           f"{a['weight_kg']:.1f} kg / BMI {a['bmi']:.1f} (chest {a['chest_cm']:.0f}, waist {a['waist_cm']:.0f}, hip {a['hip_cm']:.0f} cm)")
@@ -83,8 +105,9 @@ def _cmd_drape(args: argparse.Namespace) -> int:
 def _cmd_animate(args: argparse.Namespace) -> int:
     from tryon.drape.animate import animate
 
+    _check_positive(args, "dt", "duration")
     rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume,
-                  run=_time_parallel_runner(args), duration=args.duration)
+                  run=_time_parallel_runner(args), duration=args.duration, force=args.force)
     print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
           f"{rep['max_strain'] * 100:.1f} %, penetration up to {rep['max_penetration_pct']:.2f} % of vertices, "
           f"intersections {rep['intersections']}")
@@ -99,7 +122,7 @@ def _time_parallel_runner(args: argparse.Namespace):
 
     def run(scene, work_dir, progress, resume):
         return run_scene_time_parallel(scene, work_dir, progress=progress, resume=resume, write_objs=False,
-                                       options=_parallel_options(args))
+                                       options=_parallel_options(args), force=args.force)
 
     return run
 
@@ -250,6 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dump", action="store_true", help="print the example's YAML and exit")
     s.add_argument("--quiet", action="store_true")
     _parallel_args(s)
+    _force_arg(s)
     s.set_defaults(func=_cmd_simulate)
 
     d = sub.add_parser("drape", help="a garment of a size and fabric on a body from measurements")
@@ -263,6 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--settle-time", type=float, default=1.5, help="longest simulated settling time after the morph (s)")
     d.add_argument("--out", default="out/drape", help="output directory")
     d.add_argument("--quiet", action="store_true")
+    _force_arg(d)
     d.set_defaults(func=_cmd_drape)
 
     a = sub.add_parser("animate", help="the garment of a drape following a body motion")
@@ -274,6 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
     a.add_argument("--quiet", action="store_true")
     _parallel_args(a)
+    _force_arg(a)
     a.set_defaults(func=_cmd_animate)
 
     v = sub.add_parser("view", help="a local web page (three.js) of a drape or animation")
@@ -322,6 +348,19 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except SystemError as exc:  # Ctrl-C inside a compiled kernel surfaces as SystemError
+        if not _interrupted(exc):
+            raise
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+def _interrupted(exc: BaseException | None) -> bool:
+    while exc is not None:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 if __name__ == "__main__":

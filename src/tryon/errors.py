@@ -23,3 +23,7 @@ class InputFileError(TryonError):
 
 class SimulationError(TryonError):
     """The simulation failed in a way retries could not fix (NaN, unresolved collisions)."""
+
+
+class OutputFolderError(InputFileError):
+    """An output folder cannot be used: it holds files tryon did not write, is protected, or is not writable."""

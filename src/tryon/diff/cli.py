@@ -31,7 +31,7 @@ def _cmd_fit_fabric(args: argparse.Namespace) -> int:
     from tryon.diff.fit import run_fit_fabric
 
     report = run_fit_fabric(args.observed, args.out, scene=args.scene, truth=args.truth, method=args.method,
-                            progress=not args.quiet)
+                            progress=not args.quiet, force=args.force)
     keys = ["simulation_error", "simulations", "simulated_steps", "wall_s", "density_error", "stretching_error",
             "bending_error"]
     print(json.dumps({k: report[k] for k in keys if k in report}, indent=2))
@@ -46,7 +46,7 @@ def _cmd_control(args: argparse.Namespace) -> int:
     modes = MODES if args.mode == "all" else (args.mode,)
     variants = VARIANTS if args.variant == "both" else (args.variant,)
     report = run_control(args.example, args.out, modes=modes, variants=variants, iterations=args.iterations,
-                         resolution=args.resolution, progress=not args.quiet)
+                         resolution=args.resolution, progress=not args.quiet, force=args.force)
     print(f"{'variant':8s} {'mode':11s} {'distance/size':>13s} {'inside':>6s} {'samples':>7s} {'wall s':>7s}")
     for r in report["results"]:
         print(f"{r['variant']:8s} {r['mode']:11s} {r['final_distance_over_size']:13.3f} {str(r['landed_inside']):>6s} "
@@ -68,6 +68,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--resolution", type=int, default=8, help="grid resolution for --make-observed")
     f.add_argument("--duration", type=float, default=1.0, help="seconds simulated for --make-observed")
     f.add_argument("--quiet", action="store_true")
+    f.add_argument("--force", action="store_true", help="replace an existing --out folder tryon did not write")
     f.set_defaults(func=_cmd_fit_fabric)
 
     c = sub.add_parser("control", help="steer cloth by optimising forces through the differentiable simulator")
@@ -78,4 +79,5 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--iterations", type=int, default=30, help="optimisation steps (one simulation each)")
     c.add_argument("--resolution", type=int, default=5, help="cloth grid resolution")
     c.add_argument("--quiet", action="store_true")
+    c.add_argument("--force", action="store_true", help="replace an existing --out folder tryon did not write")
     c.set_defaults(func=_cmd_control)

@@ -38,7 +38,7 @@ from tqdm import tqdm
 
 from tryon.diff.rollout import Controls, DiffSimulator, Trajectory
 from tryon.errors import TryonError
-from tryon.io.atomic import atomic_output_dir, atomic_write
+from tryon.io.atomic import atomic_output_dir, atomic_write, check_output_dir
 from tryon.sim.mesh import grid_corner
 from tryon.sim.scene import Scene, parse_scene
 
@@ -300,7 +300,7 @@ def render_preview(path: Path, task: BasketTask, trajectory: np.ndarray, every: 
 
 def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants: tuple[str, ...] = VARIANTS,
                 iterations: int = 30, resolution: int = 5, dt: float = 0.025, lr: float | None = None,
-                progress: bool = True) -> dict:
+                progress: bool = True, force: bool = False) -> dict:
     """`tryon control --example basket`: optimise each controller on each variant, write
     report.json and a preview GIF per variant (of its best controller) into `out`."""
     if example not in EXAMPLES:
@@ -310,6 +310,7 @@ def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants
         raise TryonError(f"unknown control mode(s) {bad}; choose from {', '.join(MODES)}")
     if iterations < 1:
         raise TryonError(f"--iterations must be at least 1, got {iterations}")
+    check_output_dir(out, force=force)
     report = {"example": example, "force_time_s": FORCE_TIME, "drop_time_s": DROP_TIME, "resolution": resolution,
               "dt": dt, "iterations": iterations, "results": []}
     previews: list[tuple[str, BasketTask, np.ndarray]] = []
@@ -323,7 +324,7 @@ def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants
         best = min(results, key=lambda r: r.distance_over_size)
         previews.append((f"preview_{variant}.gif", task, best.trajectory))
     report["cloth_size_m"] = previews[0][1].size if previews else None
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, force=force) as tmp:
         for name, task, traj in previews:
             render_preview(tmp / name, task, traj)
         with atomic_write(tmp / "report.json") as fh:

@@ -39,7 +39,7 @@ from tryon.diff.rollout import DiffSimulator
 from tryon.errors import TryonError
 from tryon.fabric.presets import load_fabric, mean_preset_fabric, save_fabric
 from tryon.fabric.wang2011 import WangFabric
-from tryon.io.atomic import atomic_output_dir, atomic_path, atomic_write
+from tryon.io.atomic import atomic_output_dir, atomic_path, atomic_write, check_output_dir
 from tryon.sim.forces.wind import wind_forces
 from tryon.sim.model import ClothModel
 from tryon.sim.scene import load_scene
@@ -274,9 +274,10 @@ def _comparison_picture(path: Path, obs: Observation, fitted: np.ndarray, width:
 
 
 def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str | None = None,
-                   method: str = "gradient", progress: bool = True) -> dict:
+                   method: str = "gradient", progress: bool = True, force: bool = False) -> dict:
     """`tryon fit-fabric`: fit, then write fabric.json, loss_curve.png, observed_vs_fit.png
     and report.json into `out` (atomically, as one folder). Returns the report."""
+    check_output_dir(out, force=force)
     obs = load_observed(observed)
     truth_fabric = load_fabric(truth) if truth else None
     if truth_fabric is not None and not isinstance(truth_fabric, WangFabric):
@@ -306,7 +307,7 @@ def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str
         report["truth"] = truth_fabric.name
         report.update(parameter_errors(result.fabric, truth_fabric))
         report["start_errors"] = parameter_errors(est.start, truth_fabric)
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, force=force) as tmp:
         save_fabric(result.fabric, tmp / "fabric.json")
         _loss_plot(tmp / "loss_curve.png", result.history, method)
         _comparison_picture(tmp / "observed_vs_fit.png", obs, frames)

@@ -12,6 +12,7 @@ last_frame.png.
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -100,22 +101,23 @@ def render_preview(scene: Scene, positions: np.ndarray, times: np.ndarray, size=
 
 
 def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None = None, dt: float = 0.01,
-            progress: bool = True, resume: bool = False, run=None, duration: float | None = None) -> dict:
+            progress: bool = True, resume: bool = False, run=None, duration: float | None = None,
+            force: bool = False) -> dict:
     """Simulate the drape in `drape_dir` through `motion` and write the outputs (see the
     module docstring) into `out` (default DIR/animation-<motion>). `duration` (s) cuts the
     motion short (default: the whole motion plus the blend from the drape's pose). `run(scene, work_dir,
     progress, resume)` may replace the serial simulation (e.g. a time-parallel run); it
     returns a `tryon.sim.runner.RunResult`."""
-    from tryon.io.atomic import atomic_output_dir, atomic_write
+    from tryon.io.atomic import atomic_output_dir, atomic_write, check_output_dir, claim_work_dir
     from tryon.io.frames import save_frames_npz
     from tryon.render.animation import write_gif
     from tryon.sim.runner import render_state_png, simulate
 
     t0 = time.perf_counter()
-    scene = animation_scene(drape_dir, motion, dt=dt, duration=duration)
     out = Path(out) if out is not None else Path(drape_dir) / f"animation-{Path(str(motion)).stem}"
-    work = out.with_name(out.name + ".checkpoint")
-    work.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, force=force)
+    scene = animation_scene(drape_dir, motion, dt=dt, duration=duration)
+    work = claim_work_dir(out.with_name(out.name + ".checkpoint"), resume=resume, force=force)
     if run is None:
         result = simulate(scene, progress=progress, checkpoint_dir=work, resume=resume)
     else:
@@ -132,7 +134,7 @@ def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None 
         "wall_s": time.perf_counter() - t0,
     }
     m = scene.model
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, force=force) as tmp:
         save_frames_npz(tmp / "frames.npz", result.positions, m.faces.numpy(), uv=m.mesh.uv.numpy(), times=result.times,
                         body_vertices=bodies, body_faces=m.obstacles.faces)
         write_gif(tmp / "preview.gif", images, fps=1.0 / FRAME_TIME)
@@ -141,7 +143,5 @@ def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None 
             json.dump(metrics, fh, indent=1)
         with atomic_write(tmp / "report.json") as fh:
             json.dump(report, fh, indent=2, default=float)
-    for p in work.glob("*"):
-        p.unlink()
-    work.rmdir()
+    shutil.rmtree(work)
     return report

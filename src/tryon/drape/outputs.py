@@ -74,8 +74,9 @@ def report_dict(result) -> dict:
     }
 
 
-def write_outputs(result, out: str | Path) -> dict:
-    """Write everything into `out` (built under a temporary name, renamed when complete)."""
+def write_outputs(result, out: str | Path, force: bool = False) -> dict:
+    """Write everything into `out` (built under a temporary name, renamed when complete;
+    an existing `out` is replaced only when tryon wrote it, or with `force`)."""
     from tryon.drape.pipeline import STATE_FILE, save_state
     from tryon.garment.pattern import plot_pattern
 
@@ -83,7 +84,7 @@ def write_outputs(result, out: str | Path) -> dict:
     g = result.garment
     bv, bf = result.body_vertices, result.body_faces
     report = report_dict(result)
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, force=force) as tmp:
         write_obj(tmp / "garment.obj", result.x, g.faces, corner_uv=g.corner_uv)  # vt: material coordinates (m)
         write_obj(tmp / "body.obj", bv, bf)
         write_glb(tmp / "tryon.glb", [(bv, bf, SKIN, "body"), (result.x, g.faces, CLOTH, "garment")])

@@ -4,21 +4,33 @@ A failed or interrupted run therefore never leaves a half-written file (or folde
 that looks complete: either the old content is still there, or the new one is.
 ``os.replace`` is atomic when source and destination are on the same file system,
 which is why the temporary name is always created in the destination's directory.
+
+Output folders are owned: every folder tryon writes carries the marker file
+``OWNER_MARKER``, and a run only ever replaces a folder that carries it (or is empty).
+Any other existing folder is refused with a message, unless the caller passes
+``force=True`` (the CLI's ``--force``); even then the file-system root, the home folder,
+the working directory and its parents are never replaced.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-from tryon.errors import InputFileError
+from tryon.errors import InputFileError, OutputFolderError
 
-__all__ = ["atomic_write", "atomic_path", "atomic_output_dir"]
+__all__ = ["atomic_write", "atomic_path", "atomic_output_dir", "check_output_dir", "claim_work_dir", "publish_dir",
+           "OWNER_MARKER"]
+
+OWNER_MARKER = ".tryon-output.json"
 
 
 def _umask() -> int:
@@ -103,28 +115,118 @@ def atomic_write(
         raise
 
 
+def _protected(path: Path) -> str | None:
+    """Why `path` may never be replaced, or None."""
+    resolved = path.resolve()
+    if resolved == Path(resolved.anchor):
+        return "it is the root of the file system"
+    if resolved == Path.home().resolve():
+        return "it is your home folder"
+    cwd = Path.cwd().resolve()
+    if resolved == cwd:
+        return "it is the working directory"
+    if resolved in cwd.parents:
+        return "it contains the working directory"
+    return None
+
+
+def _writable_ancestor(path: Path) -> None:
+    """Fail now (not after the run) when `path` cannot be created."""
+    probe = path.resolve().parent
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputFolderError(f"output {path}: {probe} is a file, so the folder cannot be created there")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputFolderError(f"output {path}: no permission to write in {probe}; choose another --out")
+
+
+def is_owned(path: str | os.PathLike[str]) -> bool:
+    """True when `path` is a folder written by tryon (it carries the owner marker)."""
+    return (Path(path) / OWNER_MARKER).is_file()
+
+
+def check_output_dir(path: str | os.PathLike[str], force: bool = False) -> Path:
+    """Check, before any work, that `path` may become an output folder: it does not exist,
+    is empty, or was written by tryon (``force`` allows any other folder, never a
+    protected one). Raises `OutputFolderError` naming the problem and the way out."""
+    target = Path(path)
+    if str(path).strip() == "":
+        raise OutputFolderError("the output folder name is empty; give --out DIR")
+    why = _protected(target)
+    if why is not None:
+        raise OutputFolderError(f"refusing to use {path} as an output folder: {why}; give a new folder, e.g. out/run")
+    if target.is_symlink():
+        raise OutputFolderError(f"output folder {path} is a symbolic link; give a real folder name")
+    if target.exists():
+        if not target.is_dir():
+            raise OutputFolderError(f"output folder {path} exists and is a file; remove it or choose another name")
+        if not force and not is_owned(target) and any(target.iterdir()):
+            raise OutputFolderError(
+                f"output folder {path} exists and was not written by tryon (no {OWNER_MARKER}); it would be "
+                f"replaced: choose a new folder, empty it, or pass --force to replace it")
+    _writable_ancestor(target)
+    return target
+
+
+def _write_marker(folder: Path) -> None:
+    from tryon import __version__
+
+    info = {"written_by": "tryon", "version": __version__, "command": " ".join(sys.argv[:1] + sys.argv[1:2]),
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    (folder / OWNER_MARKER).write_text(json.dumps(info) + "\n")
+
+
+def claim_work_dir(path: str | os.PathLike[str], resume: bool = False, force: bool = False) -> Path:
+    """Create (or, with `resume`, reopen) a run's working folder such as ``OUT.partial``.
+    An owned folder left by an earlier run is cleared unless resuming; a foreign one is
+    refused like an output folder."""
+    work = check_output_dir(path, force=force)
+    if work.exists() and not resume and any(work.iterdir()):
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    if not is_owned(work):
+        _write_marker(work)
+    return work
+
+
+def publish_dir(work: str | os.PathLike[str], target: str | os.PathLike[str], force: bool = False) -> Path:
+    """Rename the finished folder `work` to `target` (replacing an owned `target`)."""
+    work, target = Path(work), check_output_dir(target, force=force)
+    if not is_owned(work):
+        _write_marker(work)
+    os.chmod(work, 0o777 & ~_umask())
+    _swap_into_place(work, target)
+    return target
+
+
 @contextmanager
-def atomic_output_dir(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_output_dir(path: str | os.PathLike[str], force: bool = False) -> Iterator[Path]:
     """Build a folder under a temporary sibling name, then rename it to ``path``.
 
     Yields the temporary folder: write everything into it. On success an existing
-    ``path`` is replaced (it is first moved aside, so there is never a moment with a
-    half-filled ``path``); on an exception the temporary folder is removed and an
-    existing ``path`` is left untouched.
+    ``path`` (empty or written by tryon, see `check_output_dir`) is replaced; it is first
+    moved aside, so there is never a moment with a half-filled ``path``. On an exception
+    the temporary folder is removed and an existing ``path`` is left untouched.
     """
-    target = Path(path)
-    if target.exists() and not target.is_dir():
-        raise InputFileError(f"output folder {target} exists and is a file; remove it or choose another name")
+    target = check_output_dir(path, force=force)
     parent = target.parent
-    parent.mkdir(parents=True, exist_ok=True)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputFolderError(f"cannot create the folder {parent} for output {path}: {exc.strerror}") from exc
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmpdir", dir=parent))
     try:
+        _write_marker(tmp)
         yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0o700; give what mkdir would
-    _swap_into_place(tmp, target)
+    try:
+        publish_dir(tmp, target, force=force)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def _swap_into_place(tmp: Path, target: Path) -> None:
@@ -139,7 +241,6 @@ def _swap_into_place(tmp: Path, target: Path) -> None:
     except BaseException:
         if old is not None:
             os.replace(old, target)
-        shutil.rmtree(tmp, ignore_errors=True)
         raise
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

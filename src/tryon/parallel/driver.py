@@ -18,7 +18,6 @@ resumed with `resume=True` keeps its finished segments and re-runs only the othe
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import time
 from collections.abc import Callable
@@ -29,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tryon.errors import TryonError
-from tryon.io.atomic import atomic_write
+from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir, publish_dir
 from tryon.parallel.coarse import CoarseRun
 from tryon.parallel.executors import LocalExecutor, Progress, RayExecutor
 from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
@@ -384,6 +383,7 @@ def run_scene_time_parallel(
     write_objs: bool = True,
     options: ParallelOptions | None = None,
     on_progress: Callable[[Progress], None] | None = None,
+    force: bool = False,
 ) -> ParallelRunResult:
     """Time-parallel counterpart of `tryon.sim.runner.run_scene`: the same outputs
     (frames.npz, obj/, summary.json, last_frame.png) for the fine cloth, assembled under
@@ -393,11 +393,8 @@ def run_scene_time_parallel(
     from tryon.sim.runner import render_state_png
 
     opts = options or ParallelOptions(workers=workers, partition=partition, ray_address=ray_address, mode=mode)
-    out_dir = Path(out_dir)
-    work = out_dir.with_name(out_dir.name + ".partial")
-    if work.exists() and not resume:
-        shutil.rmtree(work)
-    work.mkdir(parents=True, exist_ok=True)
+    out_dir = check_output_dir(out_dir, force=force)
+    work = claim_work_dir(out_dir.with_name(out_dir.name + ".partial"), resume=resume, force=force)
     result = simulate_time_parallel(scene, opts, progress=progress, checkpoint_dir=work, resume=resume,
                                     on_progress=on_progress)
     fine = result.hierarchy.fine
@@ -409,7 +406,5 @@ def run_scene_time_parallel(
     with atomic_write(work / "summary.json") as fh:
         json.dump(result.summary, fh, indent=2)
     shutil.rmtree(work / "parallel", ignore_errors=True)
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    os.replace(work, out_dir)
+    publish_dir(work, out_dir, force=force)
     return result

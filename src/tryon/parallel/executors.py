@@ -11,7 +11,9 @@ gives up, the executor submits the segment again, up to `max_attempts` times in 
 from __future__ import annotations
 
 import os
+import secrets
 import socket
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -92,9 +94,24 @@ class LocalExecutor:
 # ---------------------------------------------------------------------------- Ray
 
 def ray_environment() -> None:
-    """Environment a local Ray 2.60 needs here: no usage stats, no token auth."""
+    """Environment for joining a Ray cluster: no usage stats; token authentication only
+    where the user's environment asks for it (as the cluster was started)."""
     for key, value in RAY_ENV.items():
         os.environ.setdefault(key, value)
+
+
+def local_ray_environment() -> None:
+    """Environment for a Ray of this run's own. Ray's servers listen on every interface,
+    so the local Ray requires a fresh random token from every client: only this process
+    and the workers it starts (which inherit the environment) can submit work to it."""
+    os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
+    os.environ["RAY_AUTH_MODE"] = "token"
+    os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
+    if "ray" in sys.modules:  # Ray read its settings when it was imported: make it read them again
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        Config.initialize("")
+        AuthenticationTokenLoader.instance().reset_cache()
 
 
 def check_address(address: str, timeout: float = 3.0) -> None:
@@ -112,22 +129,32 @@ def check_address(address: str, timeout: float = 3.0) -> None:
                          "--head` there or run without --ray-address for a local Ray") from exc
 
 
+def ray_is_initialized() -> bool:
+    """Whether this process is connected to a Ray (without importing Ray for nothing)."""
+    return "ray" in sys.modules and sys.modules["ray"].is_initialized()
+
+
 def connect_ray(address: str | None, workers: int, object_store_mb: int = 256) -> bool:
     """Join the Ray at `address`, reuse an initialised one, or start a local Ray with
     `workers` CPUs and a small object store. True when this call started it."""
-    ray_environment()
+    if ray_is_initialized():
+        return False
+    if address:
+        ray_environment()
+    else:
+        local_ray_environment()
     import ray
 
-    if ray.is_initialized():
-        return False
     if address:
         check_address(address)
     try:
         if address:
             ray.init(address=address, include_dashboard=False, log_to_driver=False)
         else:
-            ray.init(num_cpus=workers, object_store_memory=object_store_mb * 1024 * 1024, include_dashboard=False,
-                     log_to_driver=False)
+            # address="local": always a Ray of this run's own, even while another
+            # cluster runs on this machine (token-protected, see local_ray_environment)
+            ray.init(address="local", num_cpus=workers,
+                     object_store_memory=object_store_mb * 1024 * 1024, include_dashboard=False, log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         where = f"the Ray cluster at {address!r}" if address else "a local Ray"
         raise TryonError(f"could not start or join {where} ({exc}); check --ray-address or run without it") from exc

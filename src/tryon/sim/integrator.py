@@ -22,6 +22,7 @@ import torch
 from tryon.errors import SimulationError
 from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
+from tryon.sim.collision.topology import export_tree_cache, import_tree_cache
 from tryon.sim.forces.bending import bending_forces
 from tryon.sim.forces.membrane import membrane_forces
 from tryon.sim.forces.wind import wind_forces
@@ -93,6 +94,22 @@ class ImplicitEulerSolver:
         stats = StepStats()
         out = self._advance_with_retries(state, dt, control, 0, stats)
         return out, stats
+
+    def checkpoint_arrays(self) -> dict[str, np.ndarray]:
+        """What, besides the cloth state, decides the next step's result: the linear
+        solver's warm start and the cached BVH topologies of the collision queries.
+        Saved with a checkpoint, restored by `restore_arrays`, a resumed run repeats the
+        uninterrupted one bit for bit."""
+        arrays = export_tree_cache()
+        if self._last_dv is not None:
+            arrays["solver_last_dv"] = self._last_dv
+        return arrays
+
+    def restore_arrays(self, arrays: dict[str, np.ndarray]) -> None:
+        """Undo-free counterpart of `checkpoint_arrays` (call before the first step)."""
+        import_tree_cache(arrays)
+        last = arrays.get("solver_last_dv")
+        self._last_dv = None if last is None else np.array(last, dtype=np.float64)
 
     # ------------------------------------------------------------------ internals
     def _advance_with_retries(self, state, dt, control, depth, stats) -> ClothState:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +19,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from tryon.errors import InputFileError
+from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir, publish_dir
 from tryon.sim.integrator import ImplicitEulerSolver, StepStats
 from tryon.sim.metrics import state_metrics
 from tryon.sim.model import ClothState
@@ -42,39 +43,55 @@ def scene_fingerprint(scene: Scene) -> str:
 
 def simulate(scene: Scene, progress: bool = True, checkpoint_dir: Path | None = None, resume: bool = False,
              checkpoint_every: int = 10) -> RunResult:
-    """Simulate `scene` for its duration, keeping every `frame_time` a frame."""
+    """Simulate `scene` for its duration, keeping every `frame_time` a frame. With a
+    `checkpoint_dir`, a checkpoint every `checkpoint_every` frames holds everything the
+    next step depends on, so a run resumed from it (`resume=True`) ends exactly where the
+    uninterrupted run ends, and its summary counts the whole run."""
     model = scene.model
     solver = ImplicitEulerSolver(model, scene.options)
+    run = _RunProgress(frames=[model.initial_state().x.numpy().copy()], times=[0.0])
     state = model.initial_state()
-    frames, times = [state.x.numpy().copy()], [0.0]
-    step0 = 0
-    totals = StepStats()
     if resume and checkpoint_dir is not None:
-        loaded = _load_checkpoint(checkpoint_dir / CHECKPOINT, scene)
+        loaded = _load_checkpoint(checkpoint_dir / CHECKPOINT, scene, solver)
         if loaded is not None:
-            state, frames, times, step0 = loaded
+            state, run = loaded
     n_steps, per_frame = scene.num_steps, scene.steps_per_frame
-    wall0 = time.perf_counter()
-    bar = tqdm(total=n_steps, initial=step0, desc=f"simulate {scene.name}", unit="step", disable=not progress, leave=False)
-    retried_steps = 0
-    for k in range(step0, n_steps):
+    wall0 = time.perf_counter() - run.wall_s
+    bar = tqdm(total=n_steps, initial=run.step, desc=f"simulate {scene.name}", unit="step", disable=not progress,
+               leave=False)
+    for k in range(run.step, n_steps):
         state, st = solver.step(state, scene.dt)
-        totals.merge(st)
-        retried_steps += int(st.retried)
+        run.totals.merge(st)
+        run.retried_steps += int(st.retried)
         bar.update(1)
         if (k + 1) % per_frame == 0 or k + 1 == n_steps:
-            frames.append(state.x.numpy().copy())
-            times.append(state.t)
-            if checkpoint_dir is not None and len(frames) % checkpoint_every == 0:
-                _save_checkpoint(checkpoint_dir / CHECKPOINT, scene, state, frames, times, k + 1)
+            run.frames.append(state.x.numpy().copy())
+            run.times.append(state.t)
+            if checkpoint_dir is not None and len(run.frames) % checkpoint_every == 0:
+                run.step, run.wall_s = k + 1, time.perf_counter() - wall0
+                _save_checkpoint(checkpoint_dir / CHECKPOINT, scene, state, run, solver)
     bar.close()
     wall = time.perf_counter() - wall0
-    positions = np.stack(frames)
-    frame_metrics = [state_metrics(model, x, t) for x, t in zip(positions, times)]
-    summary = _summary(scene, n_steps - step0, wall, totals, retried_steps, frame_metrics)
-    if retried_steps and progress:
-        print(f"note: {retried_steps} step(s) needed substeps (collision response or NaN); see summary.json")
-    return RunResult(positions, np.asarray(times), summary, frame_metrics)
+    positions = np.stack(run.frames)
+    frame_metrics = [state_metrics(model, x, t) for x, t in zip(positions, run.times)]
+    summary = _summary(scene, n_steps, wall, run.totals, run.retried_steps, frame_metrics)
+    summary["resumed_at_step"] = run.resumed_at
+    if run.retried_steps and progress:
+        print(f"note: {run.retried_steps} step(s) needed substeps (collision response or NaN); see summary.json")
+    return RunResult(positions, np.asarray(run.times), summary, frame_metrics)
+
+
+@dataclass
+class _RunProgress:
+    """What a run has done so far (restored from a checkpoint on resume)."""
+
+    frames: list
+    times: list
+    step: int = 0
+    wall_s: float = 0.0
+    retried_steps: int = 0
+    resumed_at: int | None = None
+    totals: StepStats = field(default_factory=StepStats)
 
 
 def _summary(scene: Scene, steps: int, wall: float, totals: StepStats, retried: int, fm: list[dict]) -> dict:
@@ -105,32 +122,56 @@ def _summary(scene: Scene, steps: int, wall: float, totals: StepStats, retried: 
     }
 
 
-def _save_checkpoint(path: Path, scene: Scene, state: ClothState, frames, times, step: int) -> None:
+_TOTAL_FIELDS = ("substeps", "contacts", "impacts", "collision_iterations", "solver_iterations", "retried", "fallback")
+
+
+def _save_checkpoint(path: Path, scene: Scene, state: ClothState, run: _RunProgress, solver: ImplicitEulerSolver) -> None:
+    totals = {k: getattr(run.totals, k) for k in _TOTAL_FIELDS} | {"seconds": run.totals.seconds}
+    progress = {"step": run.step, "wall_s": run.wall_s, "retried_steps": run.retried_steps, "totals": totals}
     tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, x=state.x.numpy(), v=state.v.numpy(), t=state.t, frames=np.stack(frames), times=np.asarray(times),
-             step=step, fingerprint=scene_fingerprint(scene))
+    np.savez(tmp, x=state.x.numpy(), v=state.v.numpy(), t=state.t, frames=np.stack(run.frames),
+             times=np.asarray(run.times), fingerprint=scene_fingerprint(scene), progress=json.dumps(progress),
+             **{f"solver_{k}": v for k, v in solver.checkpoint_arrays().items()})
     os.replace(tmp, path)
 
 
-def _load_checkpoint(path: Path, scene: Scene):
+def _load_checkpoint(path: Path, scene: Scene, solver: ImplicitEulerSolver) -> tuple[ClothState, _RunProgress] | None:
     if not path.exists():
         return None
-    data = np.load(path)
-    if str(data["fingerprint"]) != scene_fingerprint(scene):
-        return None
-    state = ClothState(torch.from_numpy(data["x"]), torch.from_numpy(data["v"]), float(data["t"]))
-    return state, list(data["frames"]), list(data["times"]), int(data["step"])
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        fingerprint = str(arrays["fingerprint"])
+        progress = json.loads(str(arrays["progress"]))
+        x, v, frames = arrays["x"], arrays["v"], arrays["frames"]
+        n = scene.model.num_vertices
+        if x.shape != (n, 3) or v.shape != (n, 3) or frames.ndim != 3 or frames.shape[1:] != (n, 3):
+            raise ValueError("array shapes do not match the scene's cloth")
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        raise InputFileError(f"checkpoint {path} cannot be read ({exc}); run again without --resume") from exc
+    if fingerprint != scene_fingerprint(scene):
+        raise InputFileError(f"checkpoint {path} belongs to a different scene (its settings changed since); run "
+                             "again without --resume to start over")
+    solver.restore_arrays({k[len("solver_"):]: a for k, a in arrays.items() if k.startswith("solver_")})
+    totals = progress["totals"]
+    run = _RunProgress(frames=list(frames), times=[float(t) for t in arrays["times"]], step=int(progress["step"]),
+                       wall_s=float(progress["wall_s"]), retried_steps=int(progress["retried_steps"]),
+                       resumed_at=int(progress["step"]),
+                       totals=StepStats(**{k: totals[k] for k in _TOTAL_FIELDS}, seconds=dict(totals["seconds"])))
+    state = ClothState(torch.from_numpy(x), torch.from_numpy(v), float(arrays["t"]))
+    return state, run
 
 
-def run_scene(scene: Scene, out_dir: str | Path, progress: bool = True, resume: bool = False, write_objs: bool = True) -> RunResult:
-    """Simulate and write frames, OBJs, summary.json and a picture into out_dir."""
+def run_scene(scene: Scene, out_dir: str | Path, progress: bool = True, resume: bool = False, write_objs: bool = True,
+              force: bool = False) -> RunResult:
+    """Simulate and write frames, OBJs, summary.json and a picture into out_dir. The folder
+    is assembled in `<out_dir>.partial` (which keeps the checkpoint until the run ends) and
+    renamed into place; an existing out_dir is replaced only when tryon wrote it (or with
+    `force`, see `tryon.io.atomic.check_output_dir`)."""
     from tryon.io.frames import save_frames_npz, write_obj_sequence
 
-    out_dir = Path(out_dir)
-    work = out_dir.with_name(out_dir.name + ".partial")
-    if work.exists() and not resume:
-        shutil.rmtree(work)
-    work.mkdir(parents=True, exist_ok=True)
+    out_dir = check_output_dir(out_dir, force=force)
+    work = claim_work_dir(out_dir.with_name(out_dir.name + ".partial"), resume=resume, force=force)
     result = simulate(scene, progress=progress, checkpoint_dir=work, resume=resume)
     m = scene.model
     faces, uv = m.faces.numpy(), m.mesh.uv.numpy()
@@ -138,11 +179,10 @@ def run_scene(scene: Scene, out_dir: str | Path, progress: bool = True, resume: 
     if write_objs:
         write_obj_sequence(work / "obj", result.positions, faces, uv=uv)
     render_state_png(scene, result.positions[-1], float(result.times[-1]), work / "last_frame.png")
-    (work / "summary.json").write_text(json.dumps(result.summary, indent=2))
+    with atomic_write(work / "summary.json") as fh:
+        json.dump(result.summary, fh, indent=2)
     (work / CHECKPOINT).unlink(missing_ok=True)
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    os.replace(work, out_dir)
+    publish_dir(work, out_dir, force=force)
     return result
 
 

@@ -9,7 +9,6 @@ the contact pressure in kPa of the final drape). `serve(dir)` serves it on 127.0
 
 from __future__ import annotations
 
-import functools
 import http.server
 import json
 import shutil
@@ -125,15 +124,65 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
     return out
 
 
-class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+SERVED_FILES = (*STATIC_FILES, "scene.json", "scene.bin")
+CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+                 ".txt": "text/plain; charset=utf-8", ".json": "application/json", ".bin": "application/octet-stream"}
+
+
+class _ViewerHandler(http.server.BaseHTTPRequestHandler):
+    """Serves exactly the files `write_viewer` exported (read when the server starts), to
+    requests whose Host header names this loopback server: no directory listings, no
+    other files, no symbolic links, and no answers to a page that reached 127.0.0.1
+    through another host name (DNS rebinding)."""
+
+    files: dict[str, bytes] = {}
+    allowed_hosts: frozenset[str] = frozenset()
+
+    def do_GET(self) -> None:  # noqa: N802 - the base class's name
+        self._answer(with_body=True)
+
+    def do_HEAD(self) -> None:  # noqa: N802
+        self._answer(with_body=False)
+
+    def _answer(self, with_body: bool) -> None:
+        if self.headers.get("Host", "") not in self.allowed_hosts:
+            self.send_error(403, "unexpected Host header")
+            return
+        name = self.path.split("?", 1)[0].split("#", 1)[0].lstrip("/") or "index.html"
+        body = self.files.get(name)
+        if body is None:
+            self.send_error(404)
+            return
+        self.send_response(200)
+        self.send_header("Content-Type", CONTENT_TYPES.get(Path(name).suffix, "application/octet-stream"))
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.end_headers()
+        if with_body:
+            self.wfile.write(body)
+
     def log_message(self, format, *args):  # noqa: A002 - the base class's name
         pass
 
 
+def _exported_files(directory: Path) -> dict[str, bytes]:
+    files = {}
+    for name in SERVED_FILES:
+        path = directory / name
+        if path.is_symlink() or not path.is_file():
+            raise InputFileError(f"{directory} is not a viewer folder written by tryon ({name} is missing or a link); "
+                                 "run `tryon view DRAPE_DIR` to write it")
+        files[name] = path.read_bytes()
+    return files
+
+
 def start_server(directory: str | Path, port: int = 0) -> http.server.ThreadingHTTPServer:
-    """An HTTP server for `directory` on 127.0.0.1 (port 0: any free port), running in a
-    background thread; call `.shutdown()` to stop it."""
-    handler = functools.partial(_QuietHandler, directory=str(directory))
+    """An HTTP server for the viewer in `directory` on 127.0.0.1 only (port 0: any free
+    port), running in a background thread; call `.shutdown()` to stop it."""
+    files = _exported_files(Path(directory))
+    handler = type("ViewerHandler", (_ViewerHandler,), {"files": files})
     server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+    bound = server.server_address[1]
+    handler.allowed_hosts = frozenset({f"127.0.0.1:{bound}", f"localhost:{bound}"})
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server

@@ -98,3 +98,32 @@ def face_tree(faces: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> BVH:
     order, child, first, count = entry[:4]
     nlo, nhi = refit_tree(order, child, first, count, lo, hi)
     return BVH(order, child, first, count, nlo, nhi, lo, hi)
+
+
+_TREE_PARTS = ("order", "child", "first", "count")
+
+
+def export_tree_cache() -> dict[str, np.ndarray]:
+    """The cached BVH topologies and their use counters as plain arrays (for checkpoints):
+    the tree a query traverses decides the order of its candidate pairs, so a resumed run
+    must continue with the same trees to repeat the uninterrupted run exactly."""
+    out: dict[str, np.ndarray] = {}
+    for i, (key, entry) in enumerate(_TREES.items()):
+        shape, fp = key
+        out[f"bvh{i}_key"] = np.array([*shape, entry[4]], dtype=np.int64)
+        out[f"bvh{i}_fingerprint"] = np.array([fp], dtype=np.uint64)
+        for name, a in zip(_TREE_PARTS, entry[:4]):
+            out[f"bvh{i}_{name}"] = a
+    return out
+
+
+def import_tree_cache(arrays: dict[str, np.ndarray]) -> None:
+    """Replace the BVH topology cache by one saved with `export_tree_cache`."""
+    _TREES.clear()
+    i = 0
+    while f"bvh{i}_key" in arrays:
+        key = np.asarray(arrays[f"bvh{i}_key"], dtype=np.int64)
+        fp = int(np.asarray(arrays[f"bvh{i}_fingerprint"], dtype=np.uint64)[0])
+        parts = [np.ascontiguousarray(arrays[f"bvh{i}_{name}"]) for name in _TREE_PARTS]
+        _TREES[(tuple(int(k) for k in key[:-1]), fp)] = [*parts, int(key[-1])]
+        i += 1
