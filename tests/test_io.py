@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from tryon.errors import InputFileError, MeshError
+from tryon.io.atomic import OWNER_MARKER
 from tryon.io import (
     atomic_output_dir,
     atomic_write,
@@ -231,12 +232,12 @@ def test_atomic_output_dir(tmp_path: Path) -> None:
         with atomic_output_dir(out) as tmp:
             (tmp / "b.txt").write_text("partial")
             raise ValueError("simulation diverged")
-    assert sorted(os.listdir(out)) == ["a.txt"]  # the old complete output is untouched
+    assert sorted(os.listdir(out)) == [OWNER_MARKER, "a.txt"]  # the old complete output is untouched
     assert _leftovers(tmp_path, {"run"}) == []
 
     with atomic_output_dir(out) as tmp:
         (tmp / "c.txt").write_text("3")
-    assert sorted(os.listdir(out)) == ["c.txt"]  # replaced as a whole on success
+    assert sorted(os.listdir(out)) == [OWNER_MARKER, "c.txt"]  # replaced as a whole on success
     assert _leftovers(tmp_path, {"run"}) == []
 
 
