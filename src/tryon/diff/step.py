@@ -1,11 +1,11 @@
 """One differentiable time step around the forward solver.
 
-Forward (`TapedSolver.taped_step`): exactly the steps of
-`ImplicitEulerSolver._advance` - forces, proximity penalties and friction, the implicit
-solve, continuous collision detection and impact zones - on the fast numpy / numba
-path, with the linear system factorised directly (CHOLMOD, else SuperLU) and the
-factorisation kept; the step records a `StepTape` (solution, active contacts, the
-impact-zone projections).
+Forward (`TapedSolver.taped_step`): the public phases of `ImplicitEulerSolver`'s step -
+contacts, assembly (forces, proximity penalties and friction), the implicit solve,
+continuous collision detection and impact zones - on the fast numpy / numba path, with
+the linear system factorised directly (CHOLMOD, else SuperLU) and the factorisation
+kept; the step records a `StepTape` (solution, active contacts, the impact-zone
+projections).
 
 Backward (`StepFunction`), for the outputs ``x' = z`` and ``v' = (z - x) / dt``:
 
@@ -30,21 +30,16 @@ from typing import Callable
 
 import numpy as np
 import torch
-from scipy.sparse.linalg import splu
 
 from tryon.errors import SimulationError
 from tryon.fabric.base import Fabric
-from tryon.sim import collision as col
 from tryon.sim.collision.contacts import Contacts
-from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
-from tryon.sim.linear import HAVE_CHOLMOD, bsr_matvec, reduced_system
+from tryon.sim.integrator import ActiveContacts, ImplicitEulerSolver, StepOptions
+from tryon.sim.linear import HAVE_CHOLMOD
 from tryon.sim.model import ClothModel, ClothState, Control
 from tryon.diff.geometry import impact_frame
 from tryon.diff.qp import Projection, ProjectionFn
-from tryon.diff.terms import ActiveContacts, StepInputs, step_residual
-
-if HAVE_CHOLMOD:
-    from sksparse.cholmod import analyze as _cholmod_analyze
+from tryon.diff.terms import StepInputs, step_residual
 
 FRICTION_GRADIENTS = ("constant", "exact")
 QP_METHODS = ("qr", "kkt")
@@ -73,100 +68,65 @@ class StepTape:
     impacts: int = 0
 
 
-class TapedSolver(ImplicitEulerSolver):
-    """`ImplicitEulerSolver` whose step keeps what its backward pass needs."""
+class TapedSolver:
+    """Records differentiable steps of an `ImplicitEulerSolver` by composing its public
+    phases (`detect_contacts`, `assemble`, a direct `solve_factorized` that keeps the
+    factorisation for the adjoint, `respond` with the impact-zone trace)."""
 
     def __init__(self, model: ClothModel, options: StepOptions | None = None, fabric: Fabric | None = None):
         options = options or StepOptions()
-        options = StepOptions(linear_solver="cholmod" if HAVE_CHOLMOD else "splu", pcg_tol=options.pcg_tol,
-                              max_substep_depth=options.max_substep_depth, collisions=options.collisions)
-        super().__init__(model, options, fabric)
-        self._symbolic = None
+        direct = StepOptions(linear_solver="cholmod" if HAVE_CHOLMOD else "splu", pcg_tol=options.pcg_tol,
+                             max_substep_depth=options.max_substep_depth, collisions=options.collisions)
+        self.solver = ImplicitEulerSolver(model, direct, fabric)
+
+    @property
+    def model(self) -> ClothModel:
+        return self.solver.model
+
+    @property
+    def options(self) -> StepOptions:
+        return self.solver.options
+
+    @property
+    def pinned_mask(self) -> np.ndarray:
+        return self.solver.pinned_mask
+
+    @property
+    def mass(self) -> np.ndarray:
+        return self.solver.mass
 
     def set_fabric(self, fabric: Fabric) -> None:
         """Use `fabric` (its detached values) from the next step on: stiffness and masses."""
-        self.fabric = fabric
-        self.mass = self.model.mass(fabric).detach().numpy().astype(np.float64)
-        self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
+        self.solver.use_fabric(fabric)
 
-    # ------------------------------------------------------------------ linear system
-    def _factor_solve(self, blocks, rhs, fixed, fixed_values):
-        """Solve with pinned values eliminated (`reduced_system`); also
-        return the solver of the reduced system for the adjoint."""
-        A, b = reduced_system(self.pattern, blocks, rhs, fixed, fixed_values)
-        if HAVE_CHOLMOD:
-            if self._symbolic is None:
-                self._symbolic = _cholmod_analyze(A, mode="supernodal", ordering_method="best")
-            solve = self._symbolic.cholesky(A)
-        else:
-            solve = splu(A, permc_spec="MMD_AT_PLUS_A").solve
-        return np.asarray(solve(b.reshape(-1))).reshape(-1, 3), solve
-
-    # ------------------------------------------------------------------ forward
     def taped_step(self, x: np.ndarray, v: np.ndarray, t0: float, dt: float, force: np.ndarray | None,
                    wind: np.ndarray | None, targets: np.ndarray, allow_fallback: bool) -> StepTape:
-        """One step from (x, v) at t0 (numpy in, tape out): `ImplicitEulerSolver._advance`
-        with a direct solve whose factorisation is kept."""
-        m = self.model
-        t1 = t0 + dt
-        tape = StepTape(t0=t0, dt=dt, ok=False, x=x, ob0=m.obstacles.vertices_at(t0), ob1=m.obstacles.vertices_at(t1))
+        """One step from (x, v) at t0 (numpy in, tape out): the forward solver's phases with
+        a direct solve whose factorisation is kept. (`targets`, the pinned vertices' end
+        positions, may differ from the model's handles: a policy can move them.)"""
+        solver, m = self.solver, self.solver.model
+        tape = StepTape(t0=t0, dt=dt, ok=False, x=x, ob0=m.obstacles.vertices_at(t0), ob1=m.obstacles.vertices_at(t0 + dt))
         state = ClothState(torch.from_numpy(x), torch.from_numpy(v), t0)
         control = Control(None if force is None else torch.from_numpy(force), None if wind is None else torch.from_numpy(wind))
-        H, D, f = self._elastic_and_air(state, control)
-        tape.contacts = self._contacts(x, v, tape.ob0, tape.ob1, dt, H, D, f)
-        A = dt * dt * H + dt * D
-        A[self.pattern.diag_block] += self._mass_blocks
-        Hv = np.zeros_like(v)
-        bsr_matvec(self.pattern.indptr, self.pattern.indices, H, v, Hv)
-        fixed_dv = (targets - x[self.pinned_mask]) / dt - v[self.pinned_mask]
-        dv, tape.solve = self._factor_solve(A, dt * (f - dt * Hv), self.pinned_mask, fixed_dv)
+        contacts = solver.detect_contacts(x, tape.ob1)
+        system = solver.assemble(state, dt, control, contacts, tape.ob0, tape.ob1)
+        system.targets = targets
+        system.fixed_dv = (targets - x[solver.pinned_mask]) / dt - v[solver.pinned_mask]
+        tape.contacts = system.contacts
+        dv, tape.solve = solver.linear.solve_factorized(system.A, system.rhs, solver.pinned_mask, system.fixed_dv)
         if not np.all(np.isfinite(dv)):
             return tape
-        x_new = x + dt * (v + dv)
-        x_new[self.pinned_mask] = targets
+        x_new, _ = solver.candidate(system, dv, dt)
         tape.dv, tape.x_cand = dv, x_new
-        if self.options.collisions and m.collision.enabled:
-            x_new = self._taped_response(tape, x, x_new, allow_fallback)
-            if x_new is None:
+        if solver.options.collisions and m.collision.enabled:
+            trace: list = []
+            x_new, ok, report = solver.respond(x, x_new, tape.ob0, tape.ob1, allow_fallback, trace=trace)
+            tape.trace, tape.fallback = trace, report.fallback
+            tape.constraints, tape.target_gap, tape.impacts = report.constraints, report.target_gap, report.impacts_found
+            if not ok:
                 return tape
         tape.z, tape.v_new, tape.ok = x_new, (x_new - x) / dt, True
         return tape
-
-    def _contacts(self, x, v, ob0, ob1, dt, H, D, f) -> ActiveContacts | None:
-        """Proximity penalties and friction into (H, D, f); returns the active contacts."""
-        contacts = self._proximity(x, ob1)
-        if contacts is None or len(contacts) == 0:
-            return None
-        act = self._add_contact_terms(contacts, x, v, ob1, H, f)
-        if act is None:
-            return None
-        self._add_friction_terms(act, v, ob0, ob1, dt, D, f)
-        cs = self.model.collision
-        gap = np.einsum("ck,ckd,cd->c", contacts.w, contacts.points(x, ob1), contacts.n)
-        active = cs.thickness - gap > 0.0
-        sel = contacts.select(active)
-        is_cloth = sel.idx >= 0
-        mu = np.where(is_cloth.all(1), cs.self_friction, cs.friction)
-        return ActiveContacts(sel, is_cloth, mu)
-
-    def _taped_response(self, tape: StepTape, x0, x1, allow_fallback):
-        m = self.model
-        x_fixed, report = col.resolve_collisions(
-            x0, x1, self.mass, self._faces_np, self._edges_np, tape.ob0, tape.ob1, m.obstacles.faces, m.obstacles.edges,
-            m.collision.thickness, pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision, trace=tape.trace,
-        )
-        tape.constraints, tape.target_gap, tape.impacts = report.constraints, report.target_gap, report.impacts_found
-        if report.success and np.all(np.isfinite(x_fixed)):
-            return x_fixed
-        if not allow_fallback:
-            return None
-        tape.fallback = True
-        tape.trace = []
-        return col.rigid_impact_zone_fallback(
-            x0, x_fixed if np.all(np.isfinite(x_fixed)) else x1, self.mass, self._faces_np, self._edges_np,
-            tape.ob0, tape.ob1, m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
-            pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
-        )
 
 
 # --------------------------------------------------------------------------- backward

@@ -18,7 +18,7 @@ strain / curvature dependence of the Wang 2011 stiffness lookups are included: t
 gradient is the one of the discrete map the forward computes.
 
 Friction's lagged coefficient ``c = mu fn / max(|vt|, slip speed)`` (see
-`ImplicitEulerSolver._add_friction_terms`) is differentiated with
+`tryon.sim.forces.contact`) is differentiated with
 ``friction_gradient="exact"`` (the default) or held constant with ``"constant"`` (an
 approximation).
 """
@@ -31,61 +31,22 @@ import numpy as np
 import torch
 
 from tryon.fabric.base import Fabric
-from tryon.fabric.wang2011 import WangFabric, _grid_row_weights, bending_lookup, trilinear_corners
 from tryon.sim.forces.bending import bending_forces
+from tryon.sim.forces.contact import (
+    FRICTION_SLIP_SPEED,
+    friction_coefficient,
+    lumped_weights,
+    penalty_force,
+    penalty_stiffness,
+)
 from tryon.sim.forces.membrane import membrane_forces
 from tryon.sim.forces.wind import wind_forces
-from tryon.sim.integrator import FRICTION_SLIP_SPEED
-from tryon.sim.collision.contacts import Contacts
+from tryon.sim.integrator import ActiveContacts
 from tryon.sim.model import ClothModel
 from tryon.diff.geometry import contact_frame, gather_points
 
 
-# --------------------------------------------------------------------------- stiffness
-
-
-def stretching_fn(fabric: Fabric):
-    """``G [F, 3] -> k [F, 4]`` differentiable in both G and the fabric's parameters.
-
-    For a `WangFabric`: ARCSim's 30^3 table ``2 max(W data, 0)`` interpolated trilinearly
-    at G (the lookup the forward kernel does), with only the 8 table nodes around each
-    strain evaluated from the data (the full table and its backward would cost 27000
-    rows per step). Other fabrics use their own `stretching_stiffness` (constant in G for
-    `IsotropicFabric`)."""
-    if isinstance(fabric, WangFabric):
-        W = _grid_row_weights(str(fabric.stretching_data.device))
-        data = fabric.stretching_data
-
-        def k_of(G: torch.Tensor) -> torch.Tensor:
-            idx, weights = trilinear_corners(G)
-            nodes = 2.0 * (W[idx] @ data).clamp(min=0.0)  # [F, 8, 4]
-            return (nodes * weights[..., None]).sum(1)
-
-        return k_of
-    return fabric.stretching_stiffness
-
-
-def bending_fn(fabric: Fabric):
-    """``(alpha [H], edge_dir_uv [H, 2]) -> ke [H]``, differentiable in alpha for `WangFabric`."""
-    if isinstance(fabric, WangFabric):
-        data = fabric.bending_data
-        return lambda alpha, edge_dir: bending_lookup(alpha, edge_dir, data)
-    return fabric.bending_stiffness
-
-
 # --------------------------------------------------------------------------- contacts
-
-
-@dataclass
-class ActiveContacts:
-    """Proximity contacts that were active (gap below the thickness) in a forward step."""
-
-    contacts: Contacts
-    is_cloth: np.ndarray  # [C, 4]
-    mu: np.ndarray  # [C] friction coefficient of each contact
-
-    def __len__(self) -> int:
-        return len(self.contacts)
 
 
 def _per_point(values: torch.Tensor, idx: np.ndarray, is_cloth: np.ndarray) -> torch.Tensor:
@@ -106,9 +67,10 @@ def contact_residual(
     dv: torch.Tensor,
     friction_gradient: str,
 ) -> torch.Tensor:
-    """``a^T`` (contact part of the residual): penalty force ``f_k = fn w_k n`` with
-    ``fn = k (h - g)^2 / (2h)`` and lumped stiffness ``k (h - g) / h |w_k| sum|w| n n^T``,
-    friction force ``-c w_k vt`` with lumped damping ``c |w_k| sum|w| (I - n n^T)``."""
+    """``a^T`` (contact part of the residual) of the penalty and friction potentials
+    (`tryon.sim.forces.contact`, the laws the forward step assembles): penalty force
+    ``f_k = fn w_k n`` with lumped stiffness ``stiff |w_k| sum|w| n n^T``, friction force
+    ``-c w_k vt`` with lumped damping ``c |w_k| sum|w| (I - n n^T)``."""
     cs = model.collision
     c = act.contacts
     h = cs.thickness
@@ -117,11 +79,11 @@ def contact_residual(
     gap = torch.einsum("ck,ckd,cd->c", w, P, n)
     depth = h - gap
     k = cs.stiffness * float(model.vertex_area.mean())
-    fn = k * depth * depth / (2 * h)
-    stiff = k * depth / h
+    fn = penalty_force(depth, h, k)
+    stiff = penalty_stiffness(depth, h, k)
     cloth = torch.as_tensor(act.is_cloth)
     wc = torch.where(cloth, w, torch.zeros_like(w))
-    lump = wc.abs() * wc.abs().sum(1, keepdim=True)
+    lump = lumped_weights(wc)
     A = _per_point(a, c.idx, act.is_cloth)
     an = (A * n[:, None, :]).sum(-1)  # [C, 4]
     U = _per_point(dt * dt * (v + dv), c.idx, act.is_cloth)
@@ -132,7 +94,7 @@ def contact_residual(
     vr = torch.einsum("ck,ckd->cd", w, vel)
     vt = vr - (vr * n).sum(1, keepdim=True) * n
     mu = torch.as_tensor(act.mu, dtype=x.dtype)
-    cf = mu * fn / vt.norm(dim=1).clamp_min(FRICTION_SLIP_SPEED)
+    cf = friction_coefficient(mu, fn, vt.norm(dim=1).clamp_min(FRICTION_SLIP_SPEED))
     if friction_gradient == "constant":
         cf = cf.detach()
     DV = _per_point(dv, c.idx, act.is_cloth)
@@ -189,9 +151,10 @@ def step_residual(
     x, v, fab = inp.x, inp.v, inp.fabric
     mass = fab.density * model.vertex_area
     u_el = dt * dt * (v + dv) + dt * model.damping * dv  # Rayleigh damping D = c H (elastic part)
-    _, g_mem, h_mem = membrane_forces(x, model.faces, model.Dm_inv, model.rest_area, stretching_fn(fab))
+    _, g_mem, h_mem = membrane_forces(x, model.faces, model.Dm_inv, model.rest_area, fab.stretching_stiffness_in_strain)
     _, g_bend, h_bend = bending_forces(
-        x, model.hinges, model.hinge_rest_theta, model.hinge_area_sum, model.hinge_edge_dir_uv, bending_fn(fab)
+        x, model.hinges, model.hinge_rest_theta, model.hinge_area_sum, model.hinge_edge_dir_uv,
+        fab.bending_stiffness_in_curvature,
     )
     af, ah = a[model.faces].reshape(len(model.faces), -1), a[model.hinges].reshape(len(model.hinges), -1)
     out = -dt * ((g_mem * af).sum() + (g_bend * ah).sum())

@@ -109,6 +109,16 @@ class Fabric(abc.ABC):
     def bending_stiffness(self, alpha: torch.Tensor, edge_dir_uv: torch.Tensor) -> torch.Tensor:
         """Bending stiffness ``ke [E]`` (N*m) for signed half curvatures ``alpha [E]`` (1/m)."""
 
+    def stretching_stiffness_in_strain(self, G: torch.Tensor) -> torch.Tensor:
+        """`stretching_stiffness` differentiable in the strain G as well (for the gradient of
+        a simulated step: `tryon.diff`). Models whose stiffness does not depend on strain
+        need not override it."""
+        return self.stretching_stiffness(G)
+
+    def bending_stiffness_in_curvature(self, alpha: torch.Tensor, edge_dir_uv: torch.Tensor) -> torch.Tensor:
+        """`bending_stiffness` differentiable in the curvature alpha as well (`tryon.diff`)."""
+        return self.bending_stiffness(alpha, edge_dir_uv)
+
     @abc.abstractmethod
     def parameters(self) -> torch.Tensor:
         """All physical parameters as one flat float64 vector."""

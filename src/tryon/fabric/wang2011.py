@@ -636,6 +636,18 @@ class WangFabric(Fabric):
         alpha, edge_dir_uv = check_bending_args(alpha, edge_dir_uv)
         return bending_lookup(alpha, edge_dir_uv, self._bending.to(alpha.device))
 
+    def stretching_stiffness_in_strain(self, G: torch.Tensor) -> torch.Tensor:
+        """ARCSim's table lookup differentiable in G and the data: the 8 table nodes around
+        each strain evaluated from the data and interpolated trilinearly (the full table
+        and its backward would cost 27000 rows per step)."""
+        W = _grid_row_weights(str(self._stretching.device))
+        idx, weights = trilinear_corners(G)
+        nodes = 2.0 * (W[idx] @ self._stretching).clamp(min=0.0)  # [F, 8, 4]
+        return (nodes * weights[..., None]).sum(1)
+
+    def bending_stiffness_in_curvature(self, alpha: torch.Tensor, edge_dir_uv: torch.Tensor) -> torch.Tensor:
+        return bending_lookup(alpha, edge_dir_uv, self._bending)
+
     def _probe_stretching(self, G: torch.Tensor) -> torch.Tensor:
         return self.stretching_stiffness_exact(G)
 

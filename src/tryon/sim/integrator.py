@@ -9,6 +9,11 @@ ARCSim-style contact handling (Narain et al. 2012):
 3. continuous collision detection and impact zones turn the candidate positions into
    intersection-free ones; a step whose response fails, or that produces NaN, is retried
    with substeps, and the rigid impact-zone fail-safe is the last resort.
+
+The step is composed of four public phases, which `tryon.diff` composes the same way to
+record a differentiable step: `detect_contacts` (proximity at the start of the step),
+`assemble` (forces, contact and friction potentials, the matrix: a `StepSystem`),
+`solve` (the linear solve for dv) and `respond` (CCD and impact zones).
 """
 
 from __future__ import annotations
@@ -23,15 +28,21 @@ from tryon.errors import SimulationError
 from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
 from tryon.sim.collision.topology import export_tree_cache, import_tree_cache
+from tryon.sim.collision.contacts import Contacts
 from tryon.sim.forces.bending import bending_forces
+from tryon.sim.forces.contact import (
+    FRICTION_SLIP_SPEED,
+    friction_coefficient,
+    lumped_weights,
+    penalty_force,
+    penalty_stiffness,
+)
 from tryon.sim.forces.membrane import membrane_forces
 from tryon.sim.forces.wind import wind_forces
 from tryon.sim.linear import BlockPattern, LinearSolver, add_diagonal_blocks, bsr_matvec, scatter_element_blocks
 from tryon.sim.model import ClothModel, ClothState, Control
 
-# relative tangential speed (m/s) below which friction turns from Coulomb's constant force
-# into viscous sticking: a resting contact creeps at most this fast
-FRICTION_SLIP_SPEED = 1e-3
+__all__ = ["ActiveContacts", "FRICTION_SLIP_SPEED", "ImplicitEulerSolver", "StepOptions", "StepStats", "StepSystem"]
 
 
 @dataclass
@@ -95,6 +106,13 @@ class ImplicitEulerSolver:
         out = self._advance_with_retries(state, dt, control, 0, stats)
         return out, stats
 
+    def use_fabric(self, fabric: Fabric) -> None:
+        """Use `fabric` (its detached values) from the next step on: stiffness and masses.
+        The one named way to change the material during a run (fabric estimation does)."""
+        self.fabric = fabric
+        self.mass = self.model.mass(fabric).detach().numpy().astype(np.float64)
+        self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
+
     def checkpoint_arrays(self) -> dict[str, np.ndarray]:
         """What, besides the cloth state, decides the next step's result: the linear
         solver's warm start and the cached BVH topologies of the collision queries.
@@ -130,35 +148,22 @@ class ImplicitEulerSolver:
         m = self.model
         stats = StepStats(substeps=1)
         x = state.x.detach().numpy()
-        v = state.v.detach().numpy()
-        t0, t1 = state.t, state.t + dt
-        ob0 = m.obstacles.vertices_at(t0)
-        ob1 = m.obstacles.vertices_at(t1)
+        ob0 = m.obstacles.vertices_at(state.t)
+        ob1 = m.obstacles.vertices_at(state.t + dt)
 
         tic = time.perf_counter()
-        H, D, f = self._elastic_and_air(state, control)
-        contacts = self._proximity(x, ob1)
+        contacts = self.detect_contacts(x, ob1)
         stats.contacts = 0 if contacts is None else len(contacts)
-        active = self._add_contact_terms(contacts, x, v, ob1, H, f) if stats.contacts else None
-        if active is not None:
-            self._add_friction_terms(active, v, ob0, ob1, dt, D, f)
+        system = self.assemble(state, dt, control, contacts, ob0, ob1)
         stats.seconds["forces"] = time.perf_counter() - tic
 
         tic = time.perf_counter()
-        A = dt * dt * H + dt * D
-        A[self.pattern.diag_block] += self._mass_blocks
-        Hv = np.zeros_like(v)
-        bsr_matvec(self.pattern.indptr, self.pattern.indices, H, v, Hv)
-        rhs = dt * (f - dt * Hv)
-        targets = m.pin_targets(t1).numpy()
-        fixed_dv = (targets - x[self.pinned_mask]) / dt - v[self.pinned_mask]
-        dv = self.linear.solve(A, rhs, self.pinned_mask, fixed_dv, guess=self._last_dv)
+        dv = self.solve(system, guess=self._last_dv)
         stats.solver_iterations = self.linear.last_iterations
         stats.seconds["solve"] = time.perf_counter() - tic
         if not np.all(np.isfinite(dv)):
             return state, False, stats
-
-        v_new = v + dv
+        x_new, v_new = self.candidate(system, dv, dt)
         speed = np.linalg.norm(v_new, axis=1)
         if speed.max() > self.options.max_speed:
             if not allow_fallback:
@@ -166,20 +171,91 @@ class ImplicitEulerSolver:
             # last resort: cap the runaway velocities so the fail-safe gets a sane candidate
             stats.fallback = True
             v_new *= np.minimum(1.0, self.options.max_speed / np.maximum(speed, 1e-300))[:, None]
-        x_new = x + dt * v_new
-        x_new[self.pinned_mask] = targets
+            x_new = x + dt * v_new
+            x_new[self.pinned_mask] = system.targets
 
         tic = time.perf_counter()
         ok = True
         if self.options.collisions and m.collision.enabled:
-            x_new, ok = self._respond(x, x_new, ob0, ob1, stats, allow_fallback)
+            x_new, ok, report = self.respond(x, x_new, ob0, ob1, allow_fallback)
+            stats.impacts, stats.collision_iterations = report.impacts_found, report.iterations
+            stats.fallback |= report.fallback
         stats.seconds["collision"] = time.perf_counter() - tic
         if not ok:
             return state, False, stats
         self._last_dv = dv
         v_new = (x_new - x) / dt
-        return ClothState(torch.from_numpy(x_new), torch.from_numpy(v_new), t1), True, stats
+        return ClothState(torch.from_numpy(x_new), torch.from_numpy(v_new), state.t + dt), True, stats
 
+    # ------------------------------------------------------------------ phases of a step
+    def detect_contacts(self, x: np.ndarray, ob1: np.ndarray) -> Contacts | None:
+        """Proximity contacts (cloth-cloth and cloth-obstacle within the thickness) at the
+        start of the step, against the obstacles' end-of-step positions; None when
+        collisions are off."""
+        m = self.model
+        if not (self.options.collisions and m.collision.enabled):
+            return None
+        return col.find_proximities(
+            x, self._faces_np, self._edges_np, ob1, m.obstacles.faces, m.obstacles.edges,
+            m.collision.thickness, self_collision=m.collision.self_collision,
+        )
+
+    def assemble(self, state: ClothState, dt: float, control: Control | None, contacts: Contacts | None,
+                 ob0: np.ndarray, ob1: np.ndarray) -> "StepSystem":
+        """Forces, stiffness and damping of every term at the start of the step (elastic,
+        wind, air, stitches, the contact penalty and friction potentials) and the implicit
+        system (M + dt D + dt^2 H) dv = dt (f - dt H v) with the pinned vertices' dv."""
+        x = state.x.detach().numpy()
+        v = state.v.detach().numpy()
+        H, D, f = self._elastic_and_air(state, control)
+        active = None
+        if contacts is not None and len(contacts):
+            active = self._add_contact_terms(contacts, x, v, ob1, H, f)
+            if active is not None:
+                self._add_friction_terms(active, v, ob0, ob1, dt, D, f)
+        A = dt * dt * H + dt * D
+        A[self.pattern.diag_block] += self._mass_blocks
+        Hv = np.zeros_like(v)
+        bsr_matvec(self.pattern.indptr, self.pattern.indices, H, v, Hv)
+        targets = self.model.pin_targets(state.t + dt).numpy()
+        fixed_dv = (targets - x[self.pinned_mask]) / dt - v[self.pinned_mask]
+        return StepSystem(x=x, v=v, H=H, D=D, f=f, A=A, rhs=dt * (f - dt * Hv), targets=targets, fixed_dv=fixed_dv,
+                          contacts=active)
+
+    def solve(self, system: "StepSystem", guess: np.ndarray | None = None) -> np.ndarray:
+        """dv [N,3] of the assembled system with this solver's linear solver (PCG warm
+        started from `guess`, or a direct factorisation)."""
+        return self.linear.solve(system.A, system.rhs, self.pinned_mask, system.fixed_dv, guess=guess)
+
+    def candidate(self, system: "StepSystem", dv: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate end-of-step positions and velocities for dv (pinned vertices on their targets)."""
+        v_new = system.v + dv
+        x_new = system.x + dt * v_new
+        x_new[self.pinned_mask] = system.targets
+        return x_new, v_new
+
+    def respond(self, x0: np.ndarray, x1: np.ndarray, ob0: np.ndarray, ob1: np.ndarray, allow_fallback: bool,
+                trace: list | None = None) -> tuple[np.ndarray, bool, "col.CollisionReport"]:
+        """Intersection-free positions for the move x0 -> x1 (CCD and impact zones; with
+        `allow_fallback`, rigid impact zones when those fail): (positions, ok, report).
+        `trace`, when given, records the impact-zone projections (for `tryon.diff`)."""
+        m = self.model
+        x_fixed, report = self.collision_response(x0, x1, ob0, ob1, trace=trace)
+        if report.success and np.all(np.isfinite(x_fixed)):
+            return x_fixed, True, report
+        if not allow_fallback:
+            return x1, False, report
+        report.fallback = True
+        if trace is not None:
+            trace.clear()
+        x_safe = col.rigid_impact_zone_fallback(
+            x0, x_fixed if np.all(np.isfinite(x_fixed)) else x1, self.mass, self._faces_np, self._edges_np,
+            ob0, ob1, m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
+            pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
+        )
+        return x_safe, True, report
+
+    # ------------------------------------------------------------------ terms
     def _elastic_and_air(self, state: ClothState, control: Control | None):
         """Stiffness blocks H, damping blocks D and total force f [N,3] (numpy)."""
         m, fab = self.model, self.fabric
@@ -239,21 +315,14 @@ class ImplicitEulerSolver:
             self._add_contact_terms(c, x, np.zeros_like(x), ob, self.pattern.zeros(), f)
         return f
 
-    def _proximity(self, x: np.ndarray, ob1: np.ndarray):
-        m = self.model
-        if not (self.options.collisions and m.collision.enabled):
-            return None
-        return col.find_proximities(
-            x, self._faces_np, self._edges_np, ob1, m.obstacles.faces, m.obstacles.edges,
-            m.collision.thickness, self_collision=m.collision.self_collision,
-        )
+    def contact_stiffness(self) -> float:
+        """k of the penalty: the collision stiffness times the mean vertex area."""
+        return self.model.collision.stiffness * float(self.model.vertex_area.mean())
 
-    def _add_contact_terms(self, c, x, v, ob1, H, f):
-        """Cubic repulsion penalty E = k (h - g)^3 / (6h) on every contact gap g < h
-        (ARCSim's proximity constraints; k = collision stiffness x mean vertex area). The
-        rank-one contact Hessians are lumped onto diagonal blocks (a Gershgorin bound of the
-        exact blocks), which keeps the matrix pattern fixed and the system SPD. Returns the
-        active contacts with their normal forces, for friction."""
+    def _add_contact_terms(self, c: Contacts, x, v, ob1, H, f) -> "ActiveContacts | None":
+        """The penalty potential (`tryon.sim.forces.contact`) of every contact whose gap is
+        below the thickness, into f and (lumped) H. Returns those active contacts with
+        their normal forces, for friction."""
         cs = self.model.collision
         h = cs.thickness
         pts = _contact_points(c, x, ob1)
@@ -264,11 +333,11 @@ class ImplicitEulerSolver:
             return None
         act = _select(c, pts, active)
         depth = depth[active]
-        k = cs.stiffness * float(self.model.vertex_area.mean())
-        fn = k * depth**2 / (2 * h)
-        stiff = k * depth / h
+        k = self.contact_stiffness()
+        fn = penalty_force(depth, h, k)
+        stiff = penalty_stiffness(depth, h, k)
         wc = np.where(act.is_cloth, act.w, 0.0)
-        lump = np.abs(wc) * np.abs(wc).sum(1, keepdims=True)
+        lump = lumped_weights(wc)
         nn = act.n[:, :, None] * act.n[:, None, :]
         verts = act.cloth_i[act.is_cloth]
         force = ((fn[:, None] * wc)[..., None] * act.n[:, None, :])[act.is_cloth]
@@ -277,25 +346,18 @@ class ImplicitEulerSolver:
         add_diagonal_blocks(H, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[act.is_cloth]))
         act.fn = fn
         act.stiff = stiff
+        act.mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction)
         return act
 
-    def _add_friction_terms(self, act, v, ob0, ob1, dt, D, f) -> None:
-        """Coulomb friction as a force in the implicit solve, lagged and regularised (as in
-        ARCSim's friction and IPC's lagged friction): on each contact with normal force fn
-        and relative tangential velocity vt at the start of the step,
-            f_k = -w_k c P (sum_l w_l v_l),   c = mu fn / max(|vt|, slip speed),
-        P = I - n n^T, with its velocity Jacobian -c w_k w_l P lumped onto the diagonal
-        (a Gershgorin bound, like the contact penalty). A sliding contact feels mu fn
-        against its motion; a resting one is damped so hard that it creeps at most at the
-        slip speed; and the friction force is balanced against the elastic forces inside
-        the solve, so it can never hold a stiff fabric against more than mu fn."""
-        cs = self.model.collision
+    def _add_friction_terms(self, act: "ActiveContacts", v, ob0, ob1, dt, D, f) -> None:
+        """The lagged friction potential (`tryon.sim.forces.contact`) of the active contacts,
+        into f and (lumped) D: balanced against the elastic forces inside the solve, so it
+        can never hold a stiff fabric against more than mu fn."""
         vel_ob = (ob1 - ob0) / dt if len(ob1) else np.zeros((1, 3))
         vel = np.where(act.is_cloth[..., None], v[act.cloth_i], vel_ob[act.ob_i])
         vr = np.einsum("ck,ckd->cd", act.w, vel)
         vt = vr - np.sum(vr * act.n, 1, keepdims=True) * act.n
-        mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction)
-        c = mu * act.fn / np.maximum(np.linalg.norm(vt, axis=1), FRICTION_SLIP_SPEED)
+        c = friction_coefficient(act.mu, act.fn, np.maximum(np.linalg.norm(vt, axis=1), FRICTION_SLIP_SPEED))
         keep = c > 0
         if not keep.any():
             return
@@ -304,65 +366,82 @@ class ImplicitEulerSolver:
         verts = act.cloth_i[keep][sel]
         force = -(c[keep, None] * wc)[..., None] * vt[keep][:, None, :]  # [C,4,3]
         f += _scatter_rows(force[sel], verts, len(f))
-        lump = c[keep, None] * np.abs(wc) * np.abs(wc).sum(1, keepdims=True)
+        lump = lumped_weights(wc, scale=c[keep, None])
         n = act.n[keep]
         tangent = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
         blocks = lump[..., None, None] * tangent[:, None]
         add_diagonal_blocks(D, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[sel]))
 
-    def collision_response(self, x0: np.ndarray, x1: np.ndarray, ob0: np.ndarray, ob1: np.ndarray):
+    def collision_response(self, x0: np.ndarray, x1: np.ndarray, ob0: np.ndarray, ob1: np.ndarray,
+                           trace: list | None = None):
         """`resolve_collisions` of the move x0 -> x1 (obstacles ob0 -> ob1) with this model's
         masses, topology, pins and thickness: (positions, report)."""
         m = self.model
         return col.resolve_collisions(
             x0, x1, self.mass, self._faces_np, self._edges_np, ob0, ob1, m.obstacles.faces, m.obstacles.edges,
             m.collision.thickness, pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
+            trace=trace,
         )
-
-    def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
-        m = self.model
-        x_fixed, report = self.collision_response(x0, x1, ob0, ob1)
-        stats.impacts = report.impacts_found
-        stats.collision_iterations = report.iterations
-        if report.success and np.all(np.isfinite(x_fixed)):
-            return x_fixed, True
-        if not allow_fallback:
-            return x1, False
-        stats.fallback = True
-        x_safe = col.rigid_impact_zone_fallback(
-            x0, x_fixed if np.all(np.isfinite(x_fixed)) else x1, self.mass, self._faces_np, self._edges_np,
-            ob0, ob1, m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
-            pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
-        )
-        return x_safe, True
 
 
 @dataclass
-class _ContactPoints:
-    """The four points of every contact resolved to cloth or obstacle vertices."""
+class StepSystem:
+    """The implicit system of one step, assembled at its start (`ImplicitEulerSolver.assemble`)."""
 
-    idx: np.ndarray
-    w: np.ndarray
-    n: np.ndarray
-    is_cloth: np.ndarray
-    cloth_i: np.ndarray
-    ob_i: np.ndarray
-    pos: np.ndarray
+    x: np.ndarray  # [N,3] positions at the start
+    v: np.ndarray  # [N,3] velocities at the start
+    H: np.ndarray  # stiffness blocks (elastic, stitches, contact penalties)
+    D: np.ndarray  # damping blocks (wind, air, Rayleigh, friction)
+    f: np.ndarray  # [N,3] forces
+    A: np.ndarray  # blocks of M + dt D + dt^2 H
+    rhs: np.ndarray  # [N,3] dt (f - dt H v)
+    targets: np.ndarray  # [P,3] pinned vertices' positions at the end of the step
+    fixed_dv: np.ndarray  # [P,3] the pinned vertices' dv
+    contacts: "ActiveContacts | None"
+
+
+@dataclass
+class ActiveContacts:
+    """The proximity contacts active in a step (gap below the thickness): the contacts
+    themselves, their four points resolved to cloth or obstacle vertices, and, once the
+    penalty is assembled, their normal forces, penalty stiffness and friction coefficients."""
+
+    contacts: Contacts
+    is_cloth: np.ndarray  # [C,4]
+    cloth_i: np.ndarray  # [C,4] cloth vertex of each point (0 at obstacle points)
+    ob_i: np.ndarray  # [C,4] obstacle vertex of each point (0 at cloth points)
+    pos: np.ndarray  # [C,4,3] point positions at the start of the step
     fn: np.ndarray | None = None
     stiff: np.ndarray | None = None
+    mu: np.ndarray | None = None
+
+    @property
+    def idx(self) -> np.ndarray:
+        return self.contacts.idx
+
+    @property
+    def w(self) -> np.ndarray:
+        return self.contacts.w
+
+    @property
+    def n(self) -> np.ndarray:
+        return self.contacts.n
+
+    def __len__(self) -> int:
+        return len(self.contacts)
 
 
-def _contact_points(c, x: np.ndarray, ob: np.ndarray) -> _ContactPoints:
+def _contact_points(c: Contacts, x: np.ndarray, ob: np.ndarray) -> ActiveContacts:
     is_cloth = c.idx >= 0
     cloth_i = np.where(is_cloth, c.idx, 0)
     ob_i = np.where(is_cloth, 0, -c.idx - 1)
     ob_pos = ob[ob_i] if len(ob) else np.zeros(cloth_i.shape + (3,))
     pos = np.where(is_cloth[..., None], x[cloth_i], ob_pos)
-    return _ContactPoints(c.idx, c.w, c.n, is_cloth, cloth_i, ob_i, pos)
+    return ActiveContacts(c, is_cloth, cloth_i, ob_i, pos)
 
 
-def _select(c, pts: _ContactPoints, mask: np.ndarray) -> _ContactPoints:
-    return _ContactPoints(c.idx[mask], c.w[mask], c.n[mask], pts.is_cloth[mask], pts.cloth_i[mask], pts.ob_i[mask], pts.pos[mask])
+def _select(c: Contacts, pts: ActiveContacts, mask: np.ndarray) -> ActiveContacts:
+    return ActiveContacts(c.select(mask), pts.is_cloth[mask], pts.cloth_i[mask], pts.ob_i[mask], pts.pos[mask])
 
 
 def _scatter_rows(values: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:

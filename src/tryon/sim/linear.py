@@ -10,6 +10,8 @@ conjugate gradient with Baraff-Witkin constraint filtering (compiled).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numba as nb
 import numpy as np
 import scipy.sparse as sp
@@ -243,6 +245,7 @@ class LinearSolver:
         self.tol = tol
         self.max_iter = max_iter
         self._factor = None
+        self._symbolic = None  # CHOLMOD analysis of `solve_factorized`
         self.last_iterations = 0
         self.direct_fallbacks = 0  # PCG solves that did not converge and were redone directly
 
@@ -280,3 +283,19 @@ class LinearSolver:
             sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(b.reshape(-1))
         self.last_iterations = 1
         return np.asarray(sol).reshape(-1, 3)
+
+    def solve_factorized(self, blocks: np.ndarray, rhs: np.ndarray, fixed: np.ndarray,
+                         fixed_values: np.ndarray) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+        """A direct solve that keeps its factorisation: (dv [N,3], solve) where `solve(b)`
+        solves the same reduced system (pinned vertices eliminated, `reduced_system`) for
+        another right-hand side, e.g. the adjoint of `tryon.diff`. CHOLMOD's symbolic
+        analysis is reused across calls; without CHOLMOD, SuperLU."""
+        A, b = reduced_system(self.pattern, blocks, rhs, fixed, fixed_values)
+        if HAVE_CHOLMOD:
+            if self._symbolic is None:
+                self._symbolic = _cholmod_analyze(A, mode="supernodal", ordering_method="best")
+            solve = self._symbolic.cholesky(A)
+        else:
+            solve = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve
+        self.last_iterations = 1
+        return np.asarray(solve(b.reshape(-1))).reshape(-1, 3), solve

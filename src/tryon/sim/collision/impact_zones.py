@@ -53,6 +53,7 @@ class CollisionReport:
     target_gap: float = 0.0
     constraints: Contacts = field(default_factory=Contacts.empty)
     multipliers: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    fallback: bool = False  # the step's response ended with the rigid fail-safe (`ImplicitEulerSolver.respond`)
 
 
 def count_zones(constraints: Contacts, n_vertices: int) -> int:
