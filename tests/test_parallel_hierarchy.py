@@ -108,7 +108,7 @@ def test_subdivide_hierarchy_and_bad_requests():
 
 def test_garment_coarsening_welds_seams_and_embeds_per_pattern_piece():
     from tryon.garment.pattern import Edge, Panel, Pattern, Seam
-    from tryon.garment.triangulate import merge_stitched, triangulate_pattern
+    from tryon.garment.triangulate import merge_stitched, remesh_pattern, triangulate_pattern
 
     def panel(name: str) -> Panel:  # a 0.5 x 0.6 m panel with a curved hem
         return Panel(name, [Edge("side_l", [[0, 0.6], [0, 0]]), Edge("hem", [[0, 0], [0.2, -0.05], [0.3, -0.05], [0.5, 0]], "bezier"),
@@ -127,7 +127,7 @@ def test_garment_coarsening_welds_seams_and_embeds_per_pattern_piece():
     panel = gm.panel_of_vertex[gm.faces[:, 0]]
     fine = ClothMesh(torch.from_numpy(pos), torch.from_numpy(uv), torch.from_numpy(faces), "skirt",
                      face_uv=torch.from_numpy(corner_uv))
-    coarse, coarse_panel = coarsen_garment(fine, panel, pattern, 0.08)
+    coarse, coarse_panel = coarsen_garment(fine, panel, remesh_pattern(pattern, 0.08))
     assert coarse.num_vertices < fine.num_vertices / 2.5
     U = embedding_operator(coarse, fine, coarse_panel, panel)
     assert np.allclose(np.asarray(U.sum(1)).ravel(), 1.0)

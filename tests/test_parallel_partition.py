@@ -116,7 +116,7 @@ def test_next_balanced_cut_is_uniform_for_k_one_and_ends_the_last_segment():
 
 
 def test_scheduler_simulation_reproduces_the_model_bounds_for_steady_costs(tmp_path):
-    from tryon.parallel.bench import plot_scheduler, scheduler_predictions, simulate_schedule
+    from tryon.bench.parallel import plot_scheduler, scheduler_predictions, simulate_schedule
 
     n, K = 20000, 6.0
     fine, coarse = np.full(n, K), np.ones(n)

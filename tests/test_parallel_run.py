@@ -161,7 +161,7 @@ def test_without_crossfade_segments_stop_at_their_ends(serial):
 def test_bench_popping_measures_the_jump_the_plain_join_shows(local_run):
     """With the serial states in place of the joined frames, the cross-faded pop is zero,
     while the plain join's pop (from the segments' own frames) stays what it was."""
-    from tryon.parallel.bench import popping, serial_run
+    from tryon.bench.parallel import popping, serial_run
 
     states, _ = serial_run(_scene())
     r = local_run

@@ -16,6 +16,7 @@ from tryon.errors import TryonError
 from tryon.fabric import list_presets
 from tryon.io.atomic import atomic_write
 from tryon.sim.integrator import ImplicitEulerSolver, StepStats
+from tryon.sim.loop import steps
 from tryon.sim.metrics import state_metrics
 from tryon.sim.scene import EXAMPLES, example_scene
 
@@ -32,11 +33,11 @@ def check_one(scene_name: str, fabric: str, dt: float, resolution: int, duration
     t0 = time.perf_counter()
     check_every = max(1, int(round(0.04 / dt)))
     try:
-        for k in range(scene.num_steps):
-            state, st = solver.step(state, dt)
-            totals.merge(st)
+        for rec in steps(solver, state, dt, stop=scene.num_steps):
+            state = rec.state
+            totals.merge(rec.stats)
             worst_speed = max(worst_speed, float(np.abs(state.v.numpy()).max()))
-            if (k + 1) % check_every == 0 or k + 1 == scene.num_steps:
+            if rec.step % check_every == 0 or rec.step == scene.num_steps:
                 m = state_metrics(scene.model, state.x.numpy(), state.t)
                 worst_isect = max(worst_isect, m["self_intersections"] + m["obstacle_intersections"])
     except TryonError as exc:

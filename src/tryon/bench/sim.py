@@ -13,7 +13,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from importlib import resources
 from pathlib import Path
 
@@ -48,21 +47,21 @@ def measure_one(scene_name: str, grid: int, steps: int, warmup: int = 2) -> dict
     import numpy as np
 
     from tryon.sim.integrator import ImplicitEulerSolver, StepStats
+    from tryon.sim.loop import run
+    from tryon.sim.loop import steps as sim_steps
     from tryon.sim.metrics import state_metrics
     from tryon.sim.scene import example_scene
 
     scene = example_scene(scene_name, grid, dt=0.01)
     solver = ImplicitEulerSolver(scene.model, scene.options)
-    state = scene.model.initial_state()
-    for _ in range(warmup):  # JIT compilation and CHOLMOD analysis, not timed (as ARCSim's init_s)
-        state, _ = solver.step(state, scene.dt)
+    # JIT compilation and CHOLMOD analysis, not timed (as ARCSim's init_s)
+    state = run(solver, scene.model.initial_state(), scene.dt, until=warmup).state
     totals = StepStats()
     per_step = []
-    for _ in range(steps):
-        t = time.perf_counter()
-        state, st = solver.step(state, scene.dt)
-        per_step.append(time.perf_counter() - t)
-        totals.merge(st)
+    for rec in sim_steps(solver, state, scene.dt, start=warmup, stop=warmup + steps):
+        per_step.append(rec.seconds)
+        totals.merge(rec.stats)
+        state = rec.state
     met = state_metrics(scene.model, state.x.numpy(), state.t)
     n = max(steps, 1)
     return {

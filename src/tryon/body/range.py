@@ -51,7 +51,7 @@ def render_range_sheet(path, height_cm: float = 172.0, bmis=SHEET_BMIS, size=(22
     import numpy as np
     from PIL import Image, ImageDraw
 
-    from tryon.render.colormap import _font
+    from tryon.render.colormap import label_font
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
     rows = []
@@ -65,8 +65,8 @@ def render_range_sheet(path, height_cm: float = 172.0, bmis=SHEET_BMIS, size=(22
                 img = Image.fromarray(render_meshes([RenderMesh(v, f.shape.faces, color=(0.8, 0.68, 0.6))], *size, camera=cam))
                 draw = ImageDraw.Draw(img)
                 ok = saved[gender][0] <= b <= saved[gender][1]
-                draw.text((8, 6), f"{gender} BMI {b}", fill=(0, 0, 0), font=_font(16))
-                draw.text((8, 26), "supported" if ok else "refused", fill=(20, 120, 40) if ok else (180, 30, 30), font=_font(16))
+                draw.text((8, 6), f"{gender} BMI {b}", fill=(0, 0, 0), font=label_font(16))
+                draw.text((8, 26), "supported" if ok else "refused", fill=(20, 120, 40) if ok else (180, 30, 30), font=label_font(16))
                 tiles.append(np.asarray(img.convert("RGB")))
             rows.append(np.concatenate(tiles, axis=1))
     return save_png(path, np.concatenate(rows, axis=0))

@@ -27,6 +27,8 @@ The ``sloped`` variant adds two tilted panels above the basket.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import json
 import time
 from dataclasses import dataclass, field
@@ -280,27 +282,10 @@ def run_point_mass(task: BasketTask) -> ControlResult:
 # --------------------------------------------------------------------------- outputs
 
 
-def render_preview(path: Path, task: BasketTask, trajectory: np.ndarray, every: int = 5, width: int = 360) -> None:
-    """Animated GIF of a trajectory with the obstacles, seen from above at 45 degrees."""
-    from tryon.render.animation import write_gif
-    from tryon.render.offscreen import Camera, RenderMesh, render_meshes
-
-    m = task.scene.model
-    faces = m.faces.numpy()
-    ob = m.obstacles.vertices_at(0.0)
-    statics = [RenderMesh(v, f, color=(0.75, 0.72, 0.68), smooth=False) for _name, v, f in m.obstacles.per_obstacle(ob)]
-    cam = Camera.fit(statics + [trajectory[::every].reshape(-1, 3)], view="three_quarter", margin=1.1, aspect=4 / 3,
-                     elevation_deg=45.0)  # high enough to see into the basket
-    images = []
-    for x in trajectory[::every]:
-        cloth = RenderMesh(x, faces, color=(0.85, 0.3, 0.25))
-        images.append(render_meshes(statics + [cloth], width, int(width * 3 / 4), camera=cam))
-    write_gif(path, images, fps=1.0 / (every * task.scene.dt))
-
-
 def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants: tuple[str, ...] = VARIANTS,
                 iterations: int = 30, resolution: int = 5, dt: float = 0.025, lr: float | None = None,
-                progress: bool = True, force: bool = False) -> dict:
+                progress: bool = True, force: bool = False,
+                preview: Callable[[Path, Scene, np.ndarray], None] | None = None) -> dict:
     """`tryon control --example basket`: optimise each controller on each variant, write
     report.json and a preview GIF per variant (of its best controller) into `out`."""
     if example not in EXAMPLES:
@@ -325,8 +310,8 @@ def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants
         previews.append((f"preview_{variant}.gif", task, best.trajectory))
     report["cloth_size_m"] = previews[0][1].size if previews else None
     with atomic_output_dir(out, force=force) as tmp:
-        for name, task, traj in previews:
-            render_preview(tmp / name, task, traj)
+        for name, task, traj in previews if preview is not None else ():  # e.g. sim_pictures.trajectory_gif
+            preview(tmp / name, task.scene, traj)
         with atomic_write(tmp / "report.json") as fh:
             json.dump(report, fh, indent=2)
     return report

@@ -24,6 +24,8 @@ Methods (`--method`):
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import json
 import time
 from dataclasses import dataclass, field
@@ -260,21 +262,9 @@ def _loss_plot(path: Path, history: list[dict], method: str) -> None:
     plt.close(fig)
 
 
-def _comparison_picture(path: Path, obs: Observation, fitted: np.ndarray, width: int = 320) -> None:
-    """Observed (top row, blue) and refitted (bottom row, orange) frames at 1/4, 1/2, 3/4, end."""
-    from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
-
-    picks = sorted({max(1, round(f * (obs.num_frames - 1))) for f in (0.25, 0.5, 0.75, 1.0)})
-    cam = Camera.fit([obs.positions[f] for f in picks] + [fitted[f] for f in picks], view="three_quarter", margin=1.2)
-    rows = []
-    for frames, color in ((obs.positions, (0.3, 0.45, 0.8)), (fitted, (0.9, 0.55, 0.2))):
-        tiles = [render_meshes([RenderMesh(frames[f], obs.faces, color=color)], width, width, camera=cam) for f in picks]
-        rows.append(np.concatenate(tiles, axis=1))
-    save_png(path, np.concatenate(rows, axis=0))
-
-
 def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str | None = None,
-                   method: str = "gradient", progress: bool = True, force: bool = False) -> dict:
+                   method: str = "gradient", progress: bool = True, force: bool = False,
+                   comparison_picture: Callable[[Path, np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> dict:
     """`tryon fit-fabric`: fit, then write fabric.json, loss_curve.png, observed_vs_fit.png
     and report.json into `out` (atomically, as one folder). Returns the report."""
     check_output_dir(out, force=force)
@@ -310,7 +300,8 @@ def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str
     with atomic_output_dir(out, force=force) as tmp:
         save_fabric(result.fabric, tmp / "fabric.json")
         _loss_plot(tmp / "loss_curve.png", result.history, method)
-        _comparison_picture(tmp / "observed_vs_fit.png", obs, frames)
+        if comparison_picture is not None:  # e.g. tryon.render.sim_pictures.sequence_comparison_png
+            comparison_picture(tmp / "observed_vs_fit.png", obs.faces, obs.positions, frames)
         with atomic_write(tmp / "report.json") as fh:
             json.dump(report, fh, indent=2)
     return report

@@ -24,13 +24,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from tryon.errors import TryonError
 from tryon.fabric.base import Fabric
 from tryon.fabric.presets import load_fabric
 from tryon.io.atomic import atomic_write
 from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.loop import FrameRecorder, run
 from tryon.sim.mesh import ClothMesh
 from tryon.sim.model import ClothModel, PinGroup, Wind
 from tryon.sim.scene import example_spec, parse_scene
@@ -140,14 +140,11 @@ def save_observed(path: str | Path, obs: Observation) -> None:
 
 def simulate_frames(model: ClothModel, frames: int, steps_per_frame: int, dt: float, progress: bool = False) -> np.ndarray:
     """Positions ``[frames, N, 3]`` of a forward run from the model's initial state at rest."""
-    solver = ImplicitEulerSolver(model)
     state = model.initial_state()
-    out = [state.x.numpy().copy()]
-    for _ in tqdm(range(frames - 1), desc="simulating", unit="frame", disable=not progress, leave=False):
-        for _ in range(steps_per_frame):
-            state, _ = solver.step(state, dt)
-        out.append(state.x.numpy().copy())
-    return np.stack(out)
+    frames_kept = FrameRecorder(steps_per_frame, (frames - 1) * steps_per_frame, first=state)
+    run(ImplicitEulerSolver(model), state, dt, until=(frames - 1) * steps_per_frame, observers=[frames_kept],
+        progress="simulating" if progress else None)
+    return np.stack(frames_kept.positions)
 
 
 def make_observed(fabric: str | Fabric, resolution: int = 10, duration: float = 1.0, frame_time: float = 0.04,

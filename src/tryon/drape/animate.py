@@ -11,6 +11,7 @@ last_frame.png.
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 import time
@@ -25,7 +26,10 @@ from tryon.body.motion import load_motion, motion_keyframes
 from tryon.body.pose import named_pose
 from tryon.errors import TryonError
 from tryon.fabric import load_fabric
+from tryon.garment.pattern import Pattern
+from tryon.garment.triangulate import remesh_pattern
 from tryon.sim.integrator import StepOptions
+from tryon.sim.origin import PatternOrigin
 from tryon.sim.scene import Scene
 
 FRAME_TIME = 1.0 / 30.0
@@ -67,8 +71,11 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
         raise TryonError(f"animation duration must be positive, got {total}")
     spec = {"animation": {"drape": str(Path(drape_dir).resolve()), "motion": str(motion), "dt": dt, "duration": total,
                           "blend_time": blend_time, "motion_frames": int(body_motion.num_frames)}}
+    origin = PatternOrigin(float(request["edge_length"]), np.asarray(state["face_panel"]),
+                           functools.partial(remesh_pattern, Pattern.from_dict(state["pattern"])))
     return Scene(name=f"animate-{body_motion.name}", model=model, dt=dt, duration=total, frame_time=FRAME_TIME,
-                 options=StepOptions(), description=f"{cloth.name} on a body doing '{body_motion.name}'", spec=spec)
+                 options=StepOptions(), description=f"{cloth.name} on a body doing '{body_motion.name}'", spec=spec,
+                 origin=origin)
 
 
 def frame_metrics(scene: Scene, positions: np.ndarray, times: np.ndarray, base: list[dict]) -> list[dict]:
@@ -111,7 +118,8 @@ def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None 
     from tryon.io.atomic import atomic_output_dir, atomic_write, check_output_dir, claim_work_dir
     from tryon.io.frames import save_frames_npz
     from tryon.render.animation import write_gif
-    from tryon.sim.runner import render_state_png, simulate
+    from tryon.render.sim_pictures import render_state_png
+    from tryon.sim.runner import simulate
 
     t0 = time.perf_counter()
     out = Path(out) if out is not None else Path(drape_dir) / f"animation-{Path(str(motion)).stem}"

@@ -19,6 +19,7 @@ from scipy.spatial import Delaunay
 
 from tryon.errors import MeshError
 from tryon.garment.pattern import Panel, Pattern
+from tryon.sim.origin import PatternMesh
 
 
 @dataclass
@@ -212,3 +213,11 @@ def merge_stitched(mesh: GarmentMesh, x: np.ndarray) -> tuple[np.ndarray, np.nda
     np.add.at(cnt, group, 1)
     faces = group[mesh.faces]
     return pos / cnt[:, None], faces, mesh.corner_uv.copy(), group
+
+
+def remesh_pattern(pattern: Pattern, edge_length: float) -> PatternMesh:
+    """`pattern` triangulated at `edge_length` with its seams welded, as the plain data a
+    scene's `PatternOrigin` hands to the simulator's tools (time-parallel coarsening)."""
+    gm = triangulate_pattern(pattern, edge_length)
+    _, faces, corner_uv, _ = merge_stitched(gm, np.zeros((gm.num_vertices, 3)))
+    return PatternMesh(faces.astype(np.int64), corner_uv, gm.panel_of_vertex[gm.faces[:, 0]])

@@ -37,8 +37,9 @@ from tryon.parallel.partition import PARTITIONS, AdaptivePartitioner, balanced_c
 from tryon.parallel.recovery import RecoveryOptions
 from tryon.parallel.segment import SegmentResult, SegmentSpec
 from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.loop import run
 from tryon.sim.metrics import state_metrics
-from tryon.sim.runner import RunResult
+from tryon.sim.runner import RunResult, ScenePicture
 from tryon.sim.scene import Scene
 
 MODES = ("ray", "local")
@@ -106,10 +107,9 @@ def probe_cost_ratio(hier: Hierarchy, steps: int = 2) -> dict:
     step. Used by the static balanced partition, which needs K before the run."""
     def timed(scene) -> float:
         solver = ImplicitEulerSolver(scene.model, scene.options)
-        state, _ = solver.step(scene.model.initial_state(), scene.dt)
+        warm = run(solver, scene.model.initial_state(), scene.dt, until=1)
         tic = time.perf_counter()
-        for _ in range(steps):
-            state, _ = solver.step(state, scene.dt)
+        run(solver, warm.state, scene.dt, until=1 + steps, start=1)
         return (time.perf_counter() - tic) / steps
 
     fine = timed(hier.fine)
@@ -384,13 +384,13 @@ def run_scene_time_parallel(
     options: ParallelOptions | None = None,
     on_progress: Callable[[Progress], None] | None = None,
     force: bool = False,
+    picture: ScenePicture | None = None,
 ) -> ParallelRunResult:
     """Time-parallel counterpart of `tryon.sim.runner.run_scene`: the same outputs
     (frames.npz, obj/, summary.json, last_frame.png) for the fine cloth, assembled under
     `<out>.partial` (which holds the checkpoint) and renamed into place when complete.
     `options`, when given, overrides workers / partition / ray_address / mode."""
     from tryon.io.frames import save_frames_npz, write_obj_sequence
-    from tryon.sim.runner import render_state_png
 
     opts = options or ParallelOptions(workers=workers, partition=partition, ray_address=ray_address, mode=mode)
     out_dir = check_output_dir(out_dir, force=force)
@@ -402,7 +402,8 @@ def run_scene_time_parallel(
     save_frames_npz(work / "frames.npz", result.positions, faces, uv=uv, times=result.times)
     if write_objs:
         write_obj_sequence(work / "obj", result.positions, faces, uv=uv)
-    render_state_png(fine, result.positions[-1], float(result.times[-1]), work / "last_frame.png")
+    if picture is not None:
+        picture(fine, result.positions[-1], float(result.times[-1]), work / "last_frame.png")
     with atomic_write(work / "summary.json") as fh:
         json.dump(result.summary, fh, indent=2)
     shutil.rmtree(work / "parallel", ignore_errors=True)

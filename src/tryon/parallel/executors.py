@@ -317,13 +317,14 @@ def _warm_worker(hier: Hierarchy, board=None, workers: int = 1, wait_s: float = 
     import torch
 
     from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.loop import run
 
     from tryon.parallel.recovery import clear_of_obstacles
 
     torch.set_num_threads(1)
     fine = hier.fine
     state = fine.model.initial_state()
-    ImplicitEulerSolver(fine.model, fine.options).step(state, fine.dt)
+    run(ImplicitEulerSolver(fine.model, fine.options), state, fine.dt, until=1)
     x = state.x.numpy()
     clear_of_obstacles(hier, hier.track(x, hier.restrict(x)), 0.0)  # recovery's kernels and factorisation
     if board is not None:

@@ -34,8 +34,10 @@ from tryon.errors import SceneError
 from tryon.parallel.proxy import vertex_normals
 from tryon.sim.mesh import ClothMesh
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
+from tryon.sim.loop import run
 from tryon.sim.model import ClothModel, ClothState, PinGroup
 from tryon.sim.obstacles import Obstacle
+from tryon.sim.origin import PatternMesh, PatternOrigin
 from tryon.sim.scene import Scene, parse_scene
 
 
@@ -311,7 +313,8 @@ def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: li
 
 def _with_dt(scene: Scene, model: ClothModel, dt: float, name: str) -> Scene:
     return Scene(name=name, model=model, dt=dt, duration=scene.duration, frame_time=scene.frame_time,
-                 options=copy.copy(scene.options), description=scene.description, spec=scene.spec)
+                 options=copy.copy(scene.options), description=scene.description, spec=scene.spec,
+                 origin=scene.origin)
 
 
 LEVELS = ("auto", "coarsen", "subdivide")
@@ -343,7 +346,7 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
     if obstacle_cell not in (None, "auto", "crop") and not float(obstacle_cell) > 0:
         raise SceneError(f"the coarse obstacle cell size must be positive, got {obstacle_cell}")
     spec = scene.spec or {}
-    garment = "animation" in spec
+    garment = isinstance(scene.origin, PatternOrigin)
     if dt_ratio is None:
         dt_ratio = GARMENT_DT_RATIO if garment else 1
     if dt_ratio < 1 or int(dt_ratio) != dt_ratio:
@@ -405,24 +408,20 @@ def _coarser_grid(scene: Scene, factor: float) -> tuple[ClothModel, sp.csr_matri
 
 
 def _coarser_garment(scene: Scene, factor: float, cell: float | None) -> tuple[ClothModel, sp.csr_matrix, list]:
-    """The coarse level of a garment animation (`tryon.drape.animate.animation_scene`):
-    its drape's sewing pattern at `factor` times the drape's edge length, colliding with
-    body proxies of `cell` metres ("crop": the body near the garment; None: the whole body)."""
+    """The coarse level of a garment (a scene whose cloth has a `PatternOrigin`): its
+    sewing pattern at `factor` times its edge length, colliding with body proxies of
+    `cell` metres ("crop": the body near the garment; None: the whole body)."""
     from tryon.parallel.proxy import coarse_obstacles
-
-    from tryon.drape.animate import load_drape
-    from tryon.garment.pattern import Pattern
 
     if len(scene.model.stitches) or len(scene.model.pins):
         raise SceneError("a coarsened garment cannot carry open stitches or pins; use the 'subdivide' hierarchy")
-    drape = scene.spec["animation"]["drape"]
-    state = load_drape(drape)
+    origin = scene.origin
     fine_mesh = scene.model.mesh
-    if state["faces"].shape != tuple(fine_mesh.faces.shape) or not np.array_equal(state["faces"], fine_mesh.faces.numpy()):
-        raise SceneError(f"scene {scene.name}: its garment is not the one stored in {drape}")
-    fine_panel = np.asarray(state["face_panel"])
-    mesh, coarse_panel = coarsen_garment(fine_mesh, fine_panel, Pattern.from_dict(state["pattern"]),
-                                         float(state["request"]["edge_length"]) * factor)
+    if len(origin.face_panel) != fine_mesh.faces.shape[0]:
+        raise SceneError(f"scene {scene.name}: its pattern origin has {len(origin.face_panel)} faces, the cloth "
+                         f"{fine_mesh.faces.shape[0]}")
+    fine_panel = np.asarray(origin.face_panel)
+    mesh, coarse_panel = coarsen_garment(fine_mesh, fine_panel, origin.remesh(origin.edge_length * factor))
     obstacles, proxies = coarse_obstacles(scene.model.obstacles.obstacles, cell, near=fine_mesh.x.numpy())
     probe = _model_on(scene.model, mesh, np.zeros((0, 2), np.int64), pins=[], obstacles=obstacles)
     mesh = _clear_of_obstacles(mesh, probe)
@@ -442,11 +441,11 @@ def settle_at_start(model: ClothModel, dt: float, options: StepOptions | None = 
     at t = 0; the fine garment starts from its drape, at rest): without this the coarse
     run spends its first steps falling from where `_clear_of_obstacles` put it, and every
     segment inherits that motion. Velocities are damped by `keep_velocity` each step."""
-    solver = ImplicitEulerSolver(model, options)
-    state = model.initial_state()
-    for _ in range(steps):
-        stepped, _ = solver.step(state, dt)
-        state = ClothState(stepped.x, stepped.v * keep_velocity, stepped.t)
+    def damp(s: ClothState) -> ClothState:
+        return ClothState(s.x, s.v * keep_velocity, s.t)
+
+    outcome = run(ImplicitEulerSolver(model, options), model.initial_state(), dt, until=steps, after_step=damp)
+    state = outcome.state
     m = model.mesh
     return ClothMesh(state.x.detach().clone(), m.uv, m.faces, m.name, face_uv=m.face_uv)
 
@@ -476,16 +475,12 @@ def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1
                      "use a smaller coarsening factor")
 
 
-def coarsen_garment(fine: ClothMesh, fine_panel: np.ndarray, pattern, edge_length: float) -> tuple[ClothMesh, np.ndarray]:
-    """A garment mesh triangulated from `pattern` at `edge_length`, seams welded, each
-    vertex placed on the (draped) `fine` garment at its material point. Returns the mesh
-    and the pattern piece of each of its faces (`fine_panel` is that of the fine faces)."""
-    from tryon.garment.triangulate import merge_stitched, triangulate_pattern
-
-    gm = triangulate_pattern(pattern, edge_length)
-    _, faces, corner_uv, group = merge_stitched(gm, np.zeros((gm.num_vertices, 3)))
-    n = int(group.max()) + 1
-    coarse_panel = gm.panel_of_vertex[gm.faces[:, 0]]
+def coarsen_garment(fine: ClothMesh, fine_panel: np.ndarray, coarse: PatternMesh) -> tuple[ClothMesh, np.ndarray]:
+    """The garment's pattern triangulated coarser (`coarse`, seams welded), each vertex
+    placed on the (draped) `fine` garment at its material point. Returns the mesh and the
+    pattern piece of each of its faces (`fine_panel` is that of the fine faces)."""
+    faces, corner_uv, coarse_panel = coarse.faces, coarse.corner_uv, coarse.face_panel
+    n = coarse.num_vertices
     face, corner = vertex_corners(faces, n)
     uv = corner_uv[face, corner]
     E = locate_in_triangles(uv, coarse_panel[face], fine.corner_uv().numpy(), np.asarray(fine_panel),

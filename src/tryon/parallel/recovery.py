@@ -40,6 +40,7 @@ from tryon.parallel.hierarchy import Hierarchy
 from tryon.sim.collision import count_intersections, nearest_surface_points
 from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.loop import steps
 from tryon.sim.model import ClothState
 
 
@@ -233,7 +234,7 @@ def recover_details(
     tol = options.tolerance * model.mesh.size()
     for _ in range(limit):
         try:
-            stepped, _ = solver.step(state, dt)
+            stepped = next(steps(solver, state, dt)).state
         except SimulationError as exc:
             report.failed = str(exc)
             break

@@ -23,6 +23,7 @@ from tryon.errors import SimulationError
 from tryon.parallel.hierarchy import Hierarchy
 from tryon.parallel.recovery import RecoveryOptions, recover_details
 from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.loop import steps
 
 FAULT_ENV = "TRYON_PARALLEL_FAULT"  # chaos testing: "SEGMENT:STEP:MARKER" kills that segment's worker once
 CoarsePair = tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -152,13 +153,13 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
     frames, frame_steps, seconds = [], [], []
     retried, fail_safe = 0, False
     x_end = v_end = None
+    stepper = steps(solver, state, fine.dt, start=k)
     while end is None or k < spec.stop(end):
-        a = time.perf_counter()
-        state, stats = solver.step(state, fine.dt)
-        seconds.append(time.perf_counter() - a)
+        record = next(stepper)
+        state, stats, k = record.state, record.stats, record.step
+        seconds.append(record.seconds)
         retried += int(stats.retried)
         fail_safe |= stats.fallback
-        k += 1
         _injected_fault(spec.index, k)
         if k % spec.steps_per_frame == 0 or k == spec.n_steps:
             frames.append(state.x.numpy().copy())

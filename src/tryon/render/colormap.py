@@ -71,7 +71,7 @@ def scalar_to_rgb(
 # ----------------------------------------------------------------------------- legend
 
 
-def _font(size: int) -> Any:
+def label_font(size: int) -> Any:
     from PIL import ImageFont
 
     try:
@@ -127,7 +127,7 @@ def add_colorbar(
     if not (np.isfinite(vmin) and np.isfinite(vmax)) or vmax < vmin:
         raise TryonError(f"add_colorbar range must be finite with vmin <= vmax, got [{vmin}, {vmax}]")
     h, w = img.shape[:2]
-    font = _font(max(10, round(h * 0.028)))
+    font = label_font(max(10, round(h * 0.028)))
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     tick_vals = _tick_values(float(vmin), float(vmax), ticks)
     texts = [fmt.format(v) for v in tick_vals]

@@ -12,7 +12,8 @@ import torch
 
 from tryon.errors import SceneError
 from tryon.fabric.base import Fabric
-from tryon.sim.forces.geometry import build_hinges, hinge_rest_data_corners, rest_state
+from tryon.sim.forces.bending import hinge_rest_data_corners
+from tryon.sim.forces.geometry import build_hinges, rest_state
 from tryon.sim.mesh import DTYPE, ClothMesh
 from tryon.sim.obstacles import Motion, Obstacle, ObstacleSet
 

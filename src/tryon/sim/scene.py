@@ -45,6 +45,7 @@ from tryon.sim import obstacles as obs
 from tryon.sim.integrator import StepOptions
 from tryon.sim.mesh import ClothMesh, grid_corner, grid_mesh, mesh_from_obj
 from tryon.sim.model import ClothModel, CollisionSettings, PinGroup, Wind
+from tryon.sim.origin import ClothOrigin
 
 TOP_KEYS = {"name", "description", "dt", "duration", "frame_time", "gravity", "cloth", "wind", "obstacles", "collision", "solver"}
 
@@ -59,6 +60,7 @@ class Scene:
     options: StepOptions
     description: str = ""
     spec: dict | None = None
+    origin: ClothOrigin | None = None  # a grid or a pattern's triangulation (for coarsening)
 
     @property
     def num_steps(self) -> int:

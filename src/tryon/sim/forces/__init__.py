@@ -9,7 +9,8 @@ Pure functions of tensors, called every step by the integrator:
 """
 
 from tryon.sim.forces.bending import bending_energy, bending_forces, dihedral_angle
-from tryon.sim.forces.geometry import build_hinges, hinge_rest_data, rest_state
+from tryon.sim.forces.bending import hinge_rest_data
+from tryon.sim.forces.geometry import build_hinges, rest_state
 from tryon.sim.forces.membrane import membrane_energy, membrane_forces, membrane_strain, psd_stiffness
 from tryon.sim.forces.wind import wind_forces
 

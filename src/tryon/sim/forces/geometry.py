@@ -6,8 +6,8 @@ Everything here runs once per mesh (or once per remesh), not every step:
   used by the membrane term (`tryon.sim.forces.membrane`).
 * `build_hinges`: the interior edges with their two opposite vertices, ordered exactly like
   ARCSim's ``Edge`` (``n[0], n[1]``, ``adjf[0], adjf[1]``), used by the bending term.
-* `hinge_rest_data`: rest dihedral angle, rest area of the two hinge faces, and the edge
-  direction in material space (input of the Wang 2011 bending lookup).
+(The bending term's rest data per hinge, `tryon.sim.forces.bending.hinge_rest_data`, needs
+its dihedral angle and lives beside it.)
 """
 
 from __future__ import annotations
@@ -171,76 +171,6 @@ def _reject_misoriented(first: torch.Tensor, second: torch.Tensor, start: torch.
             f"faces {f0} and {f1} traverse their shared edge ({int(start[first[h]])}, {int(end[first[h]])}) in the "
             "same direction (inconsistent orientation or duplicated face); orient all faces consistently"
         )
-
-
-def hinge_rest_data(
-    x_rest: torch.Tensor | None, uv: torch.Tensor, faces: torch.Tensor, hinges: torch.Tensor
-) -> dict[str, torch.Tensor]:
-    """Per-hinge rest quantities of ARCSim's bending term.
-
-    * ``rest_theta [H]``: rest dihedral angle ``theta_ideal``. ARCSim's ``reset_plasticity``
-      sets it to the dihedral angle of the mesh as loaded (world space), so pass the initial
-      positions as ``x_rest`` to match ARCSim; ``None`` means a flat rest shape (zeros).
-    * ``area_sum [H]``: ``A0 + A1``, the material-space areas of the two hinge faces
-      ``(v0, v1, v2)`` and ``(v1, v0, v3)``.
-    * ``edge_dir_uv [H, 2]``: ``u(v1) - u(v0)``, the material-space edge direction used by the
-      Wang 2011 bending lookup (ARCSim ``dde.cpp``, ``bending_stiffness``).
-
-    ``faces`` is used to validate that ``hinges`` and ``uv`` describe the same mesh.
-    """
-    from tryon.sim.forces.bending import dihedral_angle
-
-    uv = check_vertices(uv, 2, "uv (material coordinates)")
-    faces = check_faces(faces, uv.shape[0])
-    hinges = _check_hinges(hinges, uv.shape[0])
-    u0, u1, u2, u3 = (uv[hinges[:, c]] for c in range(4))
-    area0 = 0.5 * _cross2(u1 - u0, u2 - u0).abs()
-    area1 = 0.5 * _cross2(u0 - u1, u3 - u1).abs()
-    if x_rest is None:
-        rest_theta = torch.zeros(hinges.shape[0], dtype=DTYPE)
-    else:
-        x_rest = check_vertices(x_rest, 3, "x_rest (rest positions)")
-        if x_rest.shape[0] != uv.shape[0]:
-            raise MeshError(f"x_rest has {x_rest.shape[0]} vertices but uv has {uv.shape[0]}; give one row per vertex")
-        rest_theta = dihedral_angle(x_rest, hinges)
-    return {"rest_theta": rest_theta, "area_sum": area0 + area1, "edge_dir_uv": u1 - u0}
-
-
-def hinge_rest_data_corners(
-    corner_uv: torch.Tensor, faces: torch.Tensor, hinges: torch.Tensor, hinge_faces: torch.Tensor
-) -> dict[str, torch.Tensor]:
-    """`hinge_rest_data` (flat rest shape) from material coordinates per face corner
-    [F,3,2]: the areas come from each hinge face's own corners and the edge direction
-    from the first face's, so a hinge across a welded seam sees both panels' patterns."""
-    f0, f1 = hinge_faces[:, 0], hinge_faces[:, 1]
-
-    def area(f: torch.Tensor) -> torch.Tensor:
-        c = corner_uv[f]
-        return 0.5 * _cross2(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]).abs()
-
-    def corner_of(f: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-        k = (faces[f] == v[:, None]).to(torch.int64).argmax(1)
-        return corner_uv[f, k]
-
-    edge_dir = corner_of(f0, hinges[:, 1]) - corner_of(f0, hinges[:, 0])
-    return {"rest_theta": torch.zeros(hinges.shape[0], dtype=DTYPE), "area_sum": area(f0) + area(f1), "edge_dir_uv": edge_dir}
-
-
-def _check_hinges(hinges: torch.Tensor, num_vertices: int) -> torch.Tensor:
-    if not isinstance(hinges, torch.Tensor) or hinges.ndim != 2 or hinges.shape[1] != 4:
-        shape = tuple(hinges.shape) if isinstance(hinges, torch.Tensor) else type(hinges).__name__
-        raise MeshError(f"hinges must be an integer tensor [H, 4] from build_hinges, got {shape}")
-    hinges = hinges.to(torch.int64)
-    if hinges.numel() and (int(hinges.min()) < 0 or int(hinges.max()) >= num_vertices):
-        raise MeshError(f"hinges index vertices beyond the {num_vertices} given; rebuild them with build_hinges(faces)")
-    return hinges
-
-
-def _cross2(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-
-
-# --------------------------------------------------------------------------- kernel-path helpers
 
 
 def numba_path_ok(*tensors: torch.Tensor) -> bool:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +38,7 @@ from tryon.parallel.join import plain_join
 from tryon.parallel.recovery import RecoveryOptions, oracle_recovery_errors
 from tryon.parallel.partition import balanced_cuts, speedup_bounds, uniform_cuts
 from tryon.sim.integrator import ImplicitEulerSolver
+from tryon.sim.loop import steps
 from tryon.sim.scene import Scene, example_scene
 
 SCHEDULER_P = (8, 16, 32, 64, 128, 256, 512)
@@ -77,11 +77,10 @@ def serial_run(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     solver = ImplicitEulerSolver(scene.model, scene.options)
     state = scene.model.initial_state()
     xs, seconds = [state.x.numpy().copy()], []
-    for _ in tqdm(range(scene.num_steps), desc=f"serial {scene.name}", leave=False, disable=None):
-        tic = time.perf_counter()
-        state, _ = solver.step(state, scene.dt)
-        seconds.append(time.perf_counter() - tic)
-        xs.append(state.x.numpy().copy())
+    for rec in tqdm(steps(solver, state, scene.dt, stop=scene.num_steps), total=scene.num_steps,
+                    desc=f"serial {scene.name}", leave=False, disable=None):
+        seconds.append(rec.seconds)
+        xs.append(rec.state.x.numpy().copy())
     return np.stack(xs), np.asarray(seconds)
 
 

@@ -14,6 +14,7 @@ DEFAULT_GRIDS = [16, 32, 64, 128]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from tryon.render.sim_pictures import render_state_png
     from tryon.sim.runner import run_scene
     from tryon.sim.scene import example_scene, load_scene, parse_scene, example_spec
 
@@ -46,10 +47,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from tryon.parallel import run_scene_time_parallel
 
         result = run_scene_time_parallel(scene, out, progress=not args.quiet, resume=args.resume,
-                                         write_objs=not args.no_obj, options=_parallel_options(args), force=args.force)
+                                         write_objs=not args.no_obj, options=_parallel_options(args), force=args.force,
+                                         picture=render_state_png)
     else:
         result = run_scene(scene, out, progress=not args.quiet, resume=args.resume, write_objs=not args.no_obj,
-                           force=args.force)
+                           force=args.force, picture=render_state_png)
     s = result.summary
     print(
         f"{scene.name}: {s['steps']} steps in {s['wall_s']:.1f} s ({s['s_per_step'] * 1000:.1f} ms/step), "
@@ -206,12 +208,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         run_robustness_bench(args.json, resolution=grid, duration=0.2 if args.quick else 0.5)
         return 0
     if args.what == "grad":
-        from tryon.diff.bench import run_grad_bench
+        from tryon.bench.grad import run_grad_bench
 
         run_grad_bench(args.json, quick=args.quick)
         return 0
     if args.what == "parallel":
-        from tryon.parallel.bench import run_parallel_bench
+        from tryon.bench.parallel import run_parallel_bench
 
         run_parallel_bench(args.json, quick=args.quick, workers=args.workers)
         return 0
@@ -332,9 +334,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
     b.set_defaults(func=_cmd_bench)
 
-    from tryon.diff.cli import add_commands as add_diff_commands
+    from tryon.cli.inverse import add_commands as add_inverse_commands
 
-    add_diff_commands(sub)
+    add_inverse_commands(sub)
     return p
 
 

@@ -30,8 +30,10 @@ def _cmd_fit_fabric(args: argparse.Namespace) -> int:
         raise TryonError("fit-fabric needs OBSERVED.npz and --out DIR (or --make-observed PRESET OUT.npz)")
     from tryon.diff.fit import run_fit_fabric
 
+    from tryon.render.sim_pictures import sequence_comparison_png
+
     report = run_fit_fabric(args.observed, args.out, scene=args.scene, truth=args.truth, method=args.method,
-                            progress=not args.quiet, force=args.force)
+                            progress=not args.quiet, force=args.force, comparison_picture=sequence_comparison_png)
     keys = ["simulation_error", "simulations", "simulated_steps", "wall_s", "density_error", "stretching_error",
             "bending_error"]
     print(json.dumps({k: report[k] for k in keys if k in report}, indent=2))
@@ -41,12 +43,14 @@ def _cmd_fit_fabric(args: argparse.Namespace) -> int:
 
 def _cmd_control(args: argparse.Namespace) -> int:
     from tryon.diff.control import MODES, VARIANTS, run_control
+    from tryon.render.sim_pictures import trajectory_gif
 
     _small_problem_threads()
     modes = MODES if args.mode == "all" else (args.mode,)
     variants = VARIANTS if args.variant == "both" else (args.variant,)
     report = run_control(args.example, args.out, modes=modes, variants=variants, iterations=args.iterations,
-                         resolution=args.resolution, progress=not args.quiet, force=args.force)
+                         resolution=args.resolution, progress=not args.quiet, force=args.force,
+                         preview=trajectory_gif)
     print(f"{'variant':8s} {'mode':11s} {'distance/size':>13s} {'inside':>6s} {'samples':>7s} {'wall s':>7s}")
     for r in report["results"]:
         print(f"{r['variant']:8s} {r['mode']:11s} {r['final_distance_over_size']:13.3f} {str(r['landed_inside']):>6s} "
