@@ -460,17 +460,17 @@ def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1
     ob = model.obstacles.vertices_at(0.0)
     if len(ob) == 0:
         return mesh
-    x0 = mesh.x.numpy()
     faces, edges = mesh.faces.numpy(), mesh.edges.numpy()
-    d, q, n = col.nearest_surface_points(np.ascontiguousarray(x0), ob, model.obstacles.faces)
     h = model.collision.thickness
-    for k in steps:
-        gap = k * h
-        x = np.where((d < gap)[:, None], q + gap * n, x0)
+
+    def clear(x: np.ndarray) -> bool:
         _, crossing = col.count_intersections(x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges,
                                               self_collision=False)
-        if crossing == 0:
-            return ClothMesh(torch.from_numpy(x), mesh.uv, mesh.faces, mesh.name, face_uv=mesh.face_uv)
+        return crossing == 0
+
+    x, _, _ = col.push_outside(mesh.x.numpy(), ob, model.obstacles.faces, [k * h for k in steps], accept=clear)
+    if clear(x):
+        return ClothMesh(torch.from_numpy(x), mesh.uv, mesh.faces, mesh.name, face_uv=mesh.face_uv)
     raise SceneError(f"the coarse garment still cuts into the obstacles {steps[-1] * h * 100:.1f} cm off them; "
                      "use a smaller coarsening factor")
 

@@ -37,7 +37,8 @@ import torch
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.sim.collision import count_intersections, nearest_surface_points
+from tryon.sim.collision import count_intersections
+from tryon.sim.collision import push_outside as surface_push_outside
 from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import steps
@@ -106,19 +107,19 @@ def push_outside(hier: Hierarchy, x: np.ndarray, t: float, gap: float | None = N
     `gap` (default: the contact thickness; a coarse triangle is a chord of a curved body)
     moved out along the obstacle's normal to `gap`. Only points at most a coarse edge
     length deep move (deeper ones are behind an open obstacle surface, not in it)."""
+    return _pushed(hier, x, t, [hier.fine.model.collision.thickness if gap is None else gap])[0]
+
+
+def _pushed(hier: Hierarchy, x: np.ndarray, t: float, gaps: list[float], accept=None) -> tuple[np.ndarray, float]:
+    """`tryon.sim.collision.push_outside` against the fine level's obstacles at t, pins fixed."""
     model = hier.fine.model
     ob = model.obstacles.vertices_at(t)
     if len(ob) == 0 or not model.collision.enabled:
-        return x
-    d, q, n = nearest_surface_points(np.ascontiguousarray(x), ob, model.obstacles.faces)
-    h = model.collision.thickness if gap is None else gap
-    bad = (d < h) & (d > -coarse_edge_length(hier))
-    if len(model.pinned):
-        bad[model.pinned.numpy()] = False
-    if bad.any():
-        x = x.copy()
-        x[bad] = q[bad] + h * n[bad]
-    return x
+        return x, gaps[0]
+    pinned = model.pinned.numpy() if len(model.pinned) else None
+    out, _, used = surface_push_outside(x, ob, model.obstacles.faces, gaps, accept=accept,
+                                        max_depth=coarse_edge_length(hier), fixed=pinned)
+    return out, used
 
 
 def obstacle_crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
@@ -135,12 +136,8 @@ def obstacle_crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
 def clear_of_obstacles(hier: Hierarchy, x: np.ndarray, t: float) -> tuple[np.ndarray, float]:
     """`push_outside` with the smallest gap (in contact thicknesses, `GAPS`) that leaves no
     cloth-obstacle crossing, so that collision handling can start from the state."""
-    h = hier.fine.model.collision.thickness
-    for k in GAPS:
-        pushed = push_outside(hier, x, t, k * h)
-        if obstacle_crossings(hier, pushed, t) == 0:
-            return pushed, k * h
-    return pushed, GAPS[-1] * h
+    gaps = [k * hier.fine.model.collision.thickness for k in GAPS]
+    return _pushed(hier, x, t, gaps, accept=lambda candidate: obstacle_crossings(hier, candidate, t) == 0)
 
 
 def self_intersecting_vertices(hier: Hierarchy, x: np.ndarray) -> np.ndarray:

@@ -24,7 +24,13 @@ from tryon.sim.collision.contacts import (
     Contacts,
 )
 from tryon.sim.collision.impact_zones import CollisionReport, resolve_collisions, rigid_impact_zone_fallback
-from tryon.sim.collision.intersections import count_intersections, min_obstacle_distance, nearest_surface_points, signed_obstacle_distance
+from tryon.sim.collision.intersections import (
+    count_intersections,
+    min_obstacle_distance,
+    nearest_surface_points,
+    push_outside,
+    signed_obstacle_distance,
+)
 from tryon.sim.collision.proximity import find_proximities
 from tryon.sim.collision.qp import QPResult, solve_projection
 
@@ -43,6 +49,7 @@ __all__ = [
     "find_proximities",
     "min_obstacle_distance",
     "nearest_surface_points",
+    "push_outside",
     "overlapping_pairs",
     "QPResult",
     "solve_projection",

@@ -4,6 +4,7 @@ Aanaes 2005)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -183,3 +184,24 @@ def nearest_surface_points(x: Any, ob: Any, ob_faces: Any) -> tuple[np.ndarray, 
     side = np.sign(np.sum((x - q) * normal, 1))
     side[side == 0] = 1.0
     return side * dist, q, normal
+
+
+def push_outside(x: Any, surface_vertices: Any, surface_faces: Any, gap: float | Sequence[float],
+                 accept: Callable[[np.ndarray], bool] | None = None, max_depth: float = np.inf,
+                 fixed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Points nearer the surface than `gap` (or inside it, at most `max_depth` deep: deeper
+    points are behind an open surface, not in it) moved out along the surface's
+    pseudonormal to `gap`; `fixed` (a mask or indices) never move. With several gaps, the
+    smallest one whose result `accept` takes (e.g. "no crossing left") is used, else the
+    largest. Returns (positions [N,3], moved mask [N], the gap used)."""
+    gaps = [float(gap)] if np.ndim(gap) == 0 else [float(g) for g in gap]
+    x = as_points(x, "points")
+    d, q, n = nearest_surface_points(x, surface_vertices, surface_faces)
+    for g in gaps:
+        moved = (d < g) & (d > -max_depth)
+        if fixed is not None:
+            moved[fixed] = False
+        out = np.where(moved[:, None], q + g * n, x)
+        if accept is None or accept(out):
+            break
+    return out, moved, g
