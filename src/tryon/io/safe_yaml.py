@@ -65,8 +65,9 @@ def load_yaml(text: str, source: str = "YAML") -> Any:
     """The single document in `text` (None when empty), within the YAML limits."""
     check_limit(f"{source}: YAML text (bytes)", len(text.encode("utf-8", "replace")), LIMITS.max_yaml_bytes,
                 "max_yaml_bytes", overridable=False)
-    loader = _CountingLoader(text)
+    loader = None
     try:
+        loader = _CountingLoader(text)
         node = loader.get_single_node()
         if node is None:
             return None
@@ -79,4 +80,5 @@ def load_yaml(text: str, source: str = "YAML") -> Any:
     except (ValueError, TypeError, OverflowError) as exc:  # e.g. integers with too many digits
         raise InputFileError(f"{source}: malformed YAML ({exc})") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
