@@ -27,8 +27,11 @@ from tryon.body.anny_model import BodyShape
 from tryon.body.pose import axis_angle, bone_transforms, identity_pose, matrix_to_axis_angle, skin
 from tryon.errors import InputFileError, TryonError
 from tryon.io.atomic import atomic_write
+from tryon.limits import LIMITS, check_limit
 
 BUILTIN_MOTIONS = ("walk", "arm-raise", "turn")
+MIN_FPS, MAX_FPS = 1.0, 1000.0
+MAX_BLEND_TIME = 60.0  # s
 
 
 @dataclass
@@ -47,8 +50,11 @@ class BodyMotion:
             raise TryonError(f"motion {self.name}: rotations must be [T, J, 3] with J = {len(self.bone_labels)} bone labels, got {r.shape}")
         if not np.isfinite(r).all():
             raise TryonError(f"motion {self.name}: rotations contain NaN or inf")
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise TryonError(f"motion {self.name}: fps must be positive, got {self.fps}")
+        plain = isinstance(self.fps, (int, float, np.number)) and not isinstance(self.fps, bool)
+        if not plain or not MIN_FPS <= self.fps <= MAX_FPS:
+            raise TryonError(f"motion {self.name}: fps must lie in [{MIN_FPS:g}, {MAX_FPS:g}] frames per second, got {self.fps!r}")
+        self.fps = float(self.fps)
+        check_limit(f"motion {self.name}: frames", len(r), LIMITS.max_frames, "max_frames")
         self.rotations = r
         if self.root_translation is None:
             self.root_translation = np.zeros((len(r), 3))
@@ -105,14 +111,17 @@ def load_motion(source: str | Path, shape: BodyShape | None = None) -> BodyMotio
 
 
 def _load_npz(path: Path) -> BodyMotion:
-    try:
-        d = np.load(path, allow_pickle=False)
-        rot, labels, fps = d["rotations"], [str(x) for x in d["bone_labels"]], float(d["fps"])
-        trans = d["root_translation"] if "root_translation" in d.files else None
-        name = str(d["name"]) if "name" in d.files else path.stem
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputFileError(f"motion file {path}: unreadable or missing keys rotations / bone_labels / fps ({exc})") from exc
-    return BodyMotion(rot, labels, fps, trans, name)
+    from tryon.io import npz
+
+    arrays = npz.read_npz(path, "motion file")
+    source = f"motion file {path}"
+    if not {"rotations", "bone_labels", "fps"} <= set(arrays):
+        raise InputFileError(f"{source}: needs the arrays rotations / bone_labels / fps, it has {sorted(arrays)}")
+    labels = npz.text_list(arrays, "bone_labels", source)
+    rot = npz.float_array(arrays, "rotations", source, (None, len(labels), 3))
+    fps = npz.scalar(arrays, "fps", source, MIN_FPS, MAX_FPS, "frames per second")
+    trans = npz.float_array(arrays, "root_translation", source, (len(rot), 3)) if "root_translation" in arrays else None
+    return BodyMotion(rot, labels, fps, trans, npz.text(arrays, "name", source, path.stem, 100))
 
 
 def slerp_poses(Ra: np.ndarray, Rb: np.ndarray, s: float) -> np.ndarray:
@@ -131,8 +140,16 @@ def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarra
     """Skinned body vertices [K,V,3] and their times [K]: `blend_time` seconds from
     `start_pose` [J,3,3] into the motion's first frame (smoothstep slerp), then the motion."""
     fps = fps or motion.fps
-    poses = motion.pose_matrices(shape)
+    if not (MIN_FPS <= fps <= MAX_FPS and 0 <= blend_time <= MAX_BLEND_TIME):
+        raise TryonError(f"motion {motion.name}: need {MIN_FPS:g} <= fps <= {MAX_FPS:g} and 0 <= blend_time <= "
+                         f"{MAX_BLEND_TIME:g} s, got fps {fps} and blend_time {blend_time}")
     n_blend = max(1, int(round(blend_time * fps)))
+    count = n_blend + int(motion.duration * fps + 1e-9) + 1
+    what = f"motion {motion.name} at {fps:g} fps"
+    check_limit(f"{what}: skinned frames", count, LIMITS.max_frames, "max_frames")
+    check_limit(f"{what}: skinned frames (bytes)", 24 * count * shape.vertices.shape[0], LIMITS.max_memory_bytes,
+                "max_memory_bytes")
+    poses = motion.pose_matrices(shape)
     frames, times = [], []
     verts = shape.vertices.detach()
     for k in range(n_blend):
