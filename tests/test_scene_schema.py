@@ -94,7 +94,7 @@ def test_numbers_in_every_yaml_spelling(tmp_path):
     (_tiny(name="a/b"), r"'name' must be a simple file name"),
     (_tiny(name=".."), r"'name' must be a simple file name"),
     (_tiny(obstacles=[{"type": "plane", "normal": [0, 0, 0]}]), r"'obstacles\[0\].normal' must not be the zero vector"),
-    (_tiny(obstacles=[{"type": "sphere", "radius": 0.1, "subdivisions": 12}]), r"'obstacles\[0\].subdivisions' must be <= 7"),
+    (_tiny(obstacles=[{"type": "sphere", "radius": 0.1, "subdivisions": 12}]), r"'obstacles\[0\].subdivisions' must be <= 6"),
     (_tiny(obstacles=[{"type": "sphere", "radius": 0.1, "motion": {"start": 2, "stop": 1}}]), r"stop \(1.0\) must not be before start"),
     (_tiny(obstacles="sphere"), r"'obstacles' must be a list"),
     (_tiny(solver={"linear": "pgc"}), r"did you mean 'pcg'\?"),

@@ -322,7 +322,7 @@ class SphereSpec(_ObstacleSpec):
     type: Literal["sphere"] = spec_field(..., "`sphere`", "", "sphere")
     center: Vec3 = spec_field((0.0, 0.0, 0.0), "centre", "m", "[x, y, z]")
     radius: Number = spec_field(..., "radius", "m", gt=0, le=1000)
-    subdivisions: Int = spec_field(3, "icosphere subdivisions (10 * 4^n + 2 vertices)", "", "int", ge=0, le=7)
+    subdivisions: Int = spec_field(3, "icosphere subdivisions (10 * 4^n + 2 vertices)", "", "int", ge=0, le=6)
 
 
 class BoxSpec(_ObstacleSpec):
@@ -340,7 +340,7 @@ class PlaneSpec(_ObstacleSpec):
     point: Vec3 = spec_field((0.0, 0.0, 0.0), "centre of the patch", "m", "[x, y, z]")
     normal: Direction = spec_field((0.0, 0.0, 1.0), "normal towards the free side", "", "[x, y, z]", "non-zero")
     size: Number = spec_field(4.0, "side length of the patch", "m", gt=0, le=1e4)
-    divisions: Int = spec_field(8, "cells along each side", "", "int", ge=1, le=1000)
+    divisions: Int = spec_field(8, "cells along each side", "", "int", ge=1, le=256)
 
 
 class PyramidSpec(_ObstacleSpec):
