@@ -89,8 +89,9 @@ class BodyMotion:
         return Path(path)
 
 
-def load_motion(source: str | Path, shape: BodyShape | None = None) -> BodyMotion:
-    """A built-in motion by name, or a motion file (.npz, or .bvh retargeted onto `shape`)."""
+def load_motion(source: str | Path, shape: BodyShape | None = None, allow_large: bool | None = None) -> BodyMotion:
+    """A built-in motion by name, or a motion file (.npz, or .bvh retargeted onto `shape`);
+    `allow_large` lifts the file size limits of `tryon.limits`."""
     text = str(source)
     if text in BUILTIN_MOTIONS:
         ref = resources.files("tryon.body").joinpath(f"data/motions/{text}.npz")
@@ -104,16 +105,16 @@ def load_motion(source: str | Path, shape: BodyShape | None = None) -> BodyMotio
 
         if shape is None:
             raise TryonError(f"motion {path}: a BVH file needs the body it is retargeted onto")
-        return retarget(load_bvh(path), shape)
+        return retarget(load_bvh(path, allow_large), shape)
     if path.suffix.lower() != ".npz":
         raise InputFileError(f"motion {path}: use a .npz (rotations, bone_labels, fps) or a .bvh file")
-    return _load_npz(path)
+    return _load_npz(path, allow_large)
 
 
-def _load_npz(path: Path) -> BodyMotion:
+def _load_npz(path: Path, allow_large: bool | None = None) -> BodyMotion:
     from tryon.io import npz
 
-    arrays = npz.read_npz(path, "motion file")
+    arrays = npz.read_npz(path, "motion file", allow_large)
     source = f"motion file {path}"
     if not {"rotations", "bone_labels", "fps"} <= set(arrays):
         raise InputFileError(f"{source}: needs the arrays rotations / bone_labels / fps, it has {sorted(arrays)}")

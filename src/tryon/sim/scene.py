@@ -1,5 +1,7 @@
 """Declarative scenes: a YAML file (or a built-in example) describing a cloth, its fabric,
-pins and handles, wind, obstacles with motion, time step and duration.
+pins and handles, wind, obstacles with motion, time step and duration. The full reference,
+generated from the schema in `tryon.sim.scene_schema`, is docs/SCENE_FORMAT.md; the limits
+of `tryon.limits` are checked before anything is built.
 
 Example (every key but `cloth` is optional):
 
