@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from tryon.body.anny_model import BodyShape
-from tryon.body.motion import BodyMotion
+from tryon.body.motion_data import BodyMotion
 from tryon.body.pose import bone_transforms, children_order, matrix_to_axis_angle, rotation_between
 from tryon.errors import InputFileError, TryonError
 from tryon.limits import LIMITS, check_file_size, check_limit
