@@ -21,6 +21,10 @@ class InputFileError(TryonError):
     """A file could not be read or has the wrong content."""
 
 
+class LimitError(TryonError):
+    """An input asks for more work or memory than a safety limit allows (`tryon.limits`)."""
+
+
 class SimulationError(TryonError):
     """The simulation failed in a way retries could not fix (NaN, unresolved collisions)."""
 

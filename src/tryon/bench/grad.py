@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import json
 import platform
 import time
 
@@ -22,6 +21,7 @@ import torch
 from tryon.diff.qp import STATS
 from tryon.diff.rollout import DiffSimulator
 from tryon.io.atomic import atomic_write
+from tryon.io.json_safe import dumps_json
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import run
 from tryon.sim.scene import Scene, example_spec, parse_scene
@@ -125,5 +125,5 @@ def run_grad_bench(json_path: str, quick: bool = False) -> list[dict]:
         r.update(host)
     _print_table(records)
     with atomic_write(json_path) as fh:
-        json.dump(records, fh, indent=2)
+        fh.write(dumps_json(records, indent=2))
     return records

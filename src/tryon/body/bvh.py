@@ -28,9 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from tryon.body.anny_model import BodyShape
-from tryon.body.motion import BodyMotion
+from tryon.body.motion_data import BodyMotion
 from tryon.body.pose import bone_transforms, children_order, matrix_to_axis_angle, rotation_between
 from tryon.errors import InputFileError, TryonError
+from tryon.limits import LIMITS, check_file_size, check_limit
 
 # BVH joint name (lower case, without "mixamorig:" prefixes) -> Anny bone
 BONE_MAP = {
@@ -79,63 +80,157 @@ class Bvh:
     source: str = "bvh"
 
 
-def load_bvh(path: str | Path) -> Bvh:
+MIN_FRAME_TIME = 1e-3  # s (1000 frames per second)
+MAX_FRAME_TIME = 1.0  # s
+CHANNEL_NAMES = {f"{axis}{kind}" for axis in "xyz" for kind in ("position", "rotation")}
+
+
+def load_bvh(path: str | Path, allow_large: bool | None = None) -> Bvh:
     path = Path(path)
+    check_file_size(path, "BVH file", allow_large)
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(f"BVH file {path}: cannot be read ({exc})") from exc
-    return parse_bvh(text, str(path))
+    return parse_bvh(text, str(path), allow_large)
 
 
-def parse_bvh(text: str, source: str = "bvh") -> Bvh:
-    tokens = re.findall(r"[^\s{}]+|[{}]", text)
-    if not tokens or tokens[0].upper() != "HIERARCHY":
+class _Tokens:
+    """The BVH text as tokens, with errors that name the file and what was expected."""
+
+    def __init__(self, text: str, source: str) -> None:
+        self.items = re.findall(r"[^\s{}]+|[{}]", text)
+        self.source = source
+        self.i = 0
+
+    def more(self) -> bool:
+        return self.i < len(self.items)
+
+    def peek(self) -> str:
+        return self.items[self.i].upper() if self.more() else ""
+
+    def take(self, what: str) -> str:
+        if not self.more():
+            raise InputFileError(f"{self.source}: the file ends early (expected {what}); the BVH file is truncated")
+        self.i += 1
+        return self.items[self.i - 1]
+
+    def number(self, what: str) -> float:
+        token = self.take(what)
+        try:
+            value = float(token)
+        except ValueError:
+            raise InputFileError(f"{self.source}: expected {what}, got {token!r}") from None
+        if not np.isfinite(value):
+            raise InputFileError(f"{self.source}: {what} must be finite, got {token!r}")
+        return value
+
+    def integer(self, what: str) -> int:
+        token = self.take(what)
+        if not re.fullmatch(r"[+-]?\d{1,12}", token):
+            raise InputFileError(f"{self.source}: expected {what} (a whole number), got {token!r}")
+        return int(token)
+
+    def keyword(self, word: str) -> None:
+        token = self.take(f"'{word}'")
+        if token.upper() != word.upper():
+            raise InputFileError(f"{self.source}: expected '{word}', got {token!r}")
+
+
+def parse_bvh(text: str, source: str = "bvh", allow_large: bool | None = None) -> Bvh:
+    """Skeleton and frames of a BVH text; every malformed, truncated or absurd file raises
+    `InputFileError` (or `LimitError` for sizes beyond `tryon.limits`)."""
+    tok = _Tokens(text, source)
+    if tok.peek() != "HIERARCHY":
         raise InputFileError(f"{source}: not a BVH file (it must start with HIERARCHY)")
+    tok.take("HIERARCHY")
+    joints = _parse_hierarchy(tok, allow_large)
+    tok.keyword("MOTION")
+    tok.keyword("Frames:")
+    frames = tok.integer("the frame count after 'Frames:'")
+    tok.keyword("Frame")
+    tok.keyword("Time:")
+    frame_time = tok.number("the frame time (s) after 'Frame Time:'")
+    if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:
+        raise InputFileError(f"{source}: Frame Time must lie in [{MIN_FRAME_TIME}, {MAX_FRAME_TIME}] s "
+                             f"(1 to 1000 frames per second), got {frame_time:g}")
+    if frames < 1:
+        raise InputFileError(f"{source}: Frames must be at least 1, got {frames}")
+    check_limit(f"{source}: frames", frames, LIMITS.max_frames, "max_frames", allow_large)
+    check_limit(f"{source}: estimated memory of retargeting (bytes)", 300 * frames * len(joints),
+                LIMITS.max_memory_bytes, "max_memory_bytes", allow_large)
+    width = sum(len(j.channels) for j in joints)
+    rest = tok.items[tok.i:]
+    if len(rest) != frames * width:
+        raise InputFileError(f"{source}: expected {frames} frames of {width} channel values, found {len(rest)} numbers"
+                             " (truncated file, or a wrong Frames: count)")
+    try:
+        numbers = np.array(rest, dtype=np.float64)
+    except ValueError:
+        raise InputFileError(f"{source}: the MOTION section holds something that is not a number") from None
+    if not np.isfinite(numbers).all():
+        raise InputFileError(f"{source}: the MOTION section holds NaN or infinite values")
+    return Bvh(joints, frame_time, numbers.reshape(frames, width), source)
+
+
+def _parse_hierarchy(tok: _Tokens, allow_large: bool | None) -> list[BvhJoint]:
+    source = tok.source
     joints: list[BvhJoint] = []
     stack: list[int] = []  # open blocks: a joint index, or -1 for an End Site
-    pending = -1
-    i = 1
-    try:
-        while tokens[i].upper() != "MOTION":
-            tok = tokens[i].upper()
-            if tok in ("ROOT", "JOINT"):
-                joints.append(BvhJoint(tokens[i + 1], stack[-1] if stack else -1, np.zeros(3), []))
-                pending = len(joints) - 1
-                i += 2
-            elif tok == "END":  # End Site
-                pending = -1
-                i += 2
-            elif tok == "{":
-                stack.append(pending)
-                i += 1
-            elif tok == "}":
-                stack.pop()
-                i += 1
-            elif tok == "OFFSET":
-                off = np.array([float(v) for v in tokens[i + 1:i + 4]])
-                if stack[-1] >= 0:
-                    joints[stack[-1]].offset = off
-                else:
-                    joints[stack[-2]].end_offset = off
-                i += 4
-            elif tok == "CHANNELS":
-                n = int(tokens[i + 1])
-                joints[stack[-1]].channels = tokens[i + 2:i + 2 + n]
-                i += 2 + n
+    pending: int | None = None  # the block the next '{' opens
+    while tok.more() and tok.peek() != "MOTION":
+        word = tok.take("a HIERARCHY keyword").upper()
+        if word in ("ROOT", "JOINT"):
+            if (word == "ROOT") == bool(stack) or (stack and stack[-1] < 0):
+                raise InputFileError(f"{source}: {word} in the wrong place (ROOT opens the skeleton, JOINT lies inside a joint)")
+            joints.append(BvhJoint(tok.take("a joint name"), stack[-1] if stack else -1, np.zeros(3), []))
+            check_limit(f"{source}: joints", len(joints), LIMITS.max_joints, "max_joints", allow_large)
+            pending = len(joints) - 1
+        elif word == "END":
+            tok.keyword("Site")
+            if not stack or stack[-1] < 0:
+                raise InputFileError(f"{source}: 'End Site' outside a joint")
+            pending = -1
+        elif word == "{":
+            if pending is None:
+                raise InputFileError(f"{source}: '{{' without a ROOT, JOINT or End Site before it")
+            stack.append(pending)
+            pending = None
+        elif word == "}":
+            if not stack:
+                raise InputFileError(f"{source}: unbalanced '}}' in HIERARCHY")
+            stack.pop()
+        elif word == "OFFSET":
+            if not stack:
+                raise InputFileError(f"{source}: OFFSET outside a joint block")
+            off = np.array([tok.number("an OFFSET coordinate") for _ in range(3)])
+            if stack[-1] >= 0:
+                joints[stack[-1]].offset = off
             else:
-                raise InputFileError(f"{source}: unexpected token {tokens[i]!r} in HIERARCHY")
-        frames = int(tokens[i + 2])
-        frame_time = float(tokens[i + 5])
-        numbers = np.array([float(v) for v in tokens[i + 6:]])
-    except (IndexError, ValueError) as exc:
-        raise InputFileError(f"{source}: malformed BVH ({exc})") from exc
-    width = sum(len(j.channels) for j in joints)
-    if not joints or frames < 1 or numbers.size != frames * width:
-        raise InputFileError(f"{source}: expected {frames} frames of {width} channel values, found {numbers.size} numbers")
-    if frame_time <= 0:
-        raise InputFileError(f"{source}: Frame Time must be positive, got {frame_time}")
-    return Bvh(joints, frame_time, numbers.reshape(frames, width), source)
+                joints[stack[-2]].end_offset = off
+        elif word == "CHANNELS":
+            _parse_channels(tok, joints, stack)
+        else:
+            raise InputFileError(f"{source}: unexpected token {tok.items[tok.i - 1]!r} in HIERARCHY")
+    if not tok.more():
+        raise InputFileError(f"{source}: no MOTION section (the file is truncated)")
+    if stack or not joints:
+        raise InputFileError(f"{source}: the HIERARCHY is incomplete ({len(stack)} unclosed blocks, {len(joints)} joints)")
+    return joints
+
+
+def _parse_channels(tok: _Tokens, joints: list[BvhJoint], stack: list[int]) -> None:
+    source = tok.source
+    if not stack or stack[-1] < 0:
+        raise InputFileError(f"{source}: CHANNELS outside a joint block")
+    n = tok.integer("the channel count after CHANNELS")
+    if not 0 <= n <= 6:
+        raise InputFileError(f"{source}: a joint has 0 to 6 CHANNELS, got {n}")
+    names = [tok.take("a channel name") for _ in range(n)]
+    bad = [c for c in names if c.lower() not in CHANNEL_NAMES]
+    if bad:
+        raise InputFileError(f"{source}: unknown channel {bad[0]!r}; use Xposition .. Zrotation")
+    joints[stack[-1]].channels = names
 
 
 def _axis_rotation(axis: str, deg: np.ndarray) -> np.ndarray:

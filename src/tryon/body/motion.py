@@ -17,74 +17,27 @@ spherical interpolation; `morph_keyframes` changes one body shape into another o
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from tryon.body.anny_model import BodyShape
-from tryon.body.pose import axis_angle, bone_transforms, identity_pose, matrix_to_axis_angle, skin
+from tryon.body.motion_data import MAX_FPS, MIN_FPS, BodyMotion
+from tryon.body.pose import axis_angle, bone_transforms, matrix_to_axis_angle, skin
 from tryon.errors import InputFileError, TryonError
-from tryon.io.atomic import atomic_write
+from tryon.limits import LIMITS, check_limit
+
+__all__ = ["BUILTIN_MOTIONS", "BodyMotion", "load_motion", "motion_keyframes", "morph_keyframes", "posed_sequence",
+           "slerp_poses", "smoothstep"]
 
 BUILTIN_MOTIONS = ("walk", "arm-raise", "turn")
+MAX_BLEND_TIME = 60.0  # s
 
 
-@dataclass
-class BodyMotion:
-    """Per-frame bone rotations [T,J,3] (axis-angle) for `bone_labels`, at `fps`."""
-
-    rotations: np.ndarray
-    bone_labels: list[str]
-    fps: float
-    root_translation: np.ndarray | None = None
-    name: str = "motion"
-
-    def __post_init__(self) -> None:
-        r = np.asarray(self.rotations, dtype=np.float64)
-        if r.ndim != 3 or r.shape[2] != 3 or r.shape[0] < 1 or r.shape[1] != len(self.bone_labels):
-            raise TryonError(f"motion {self.name}: rotations must be [T, J, 3] with J = {len(self.bone_labels)} bone labels, got {r.shape}")
-        if not np.isfinite(r).all():
-            raise TryonError(f"motion {self.name}: rotations contain NaN or inf")
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise TryonError(f"motion {self.name}: fps must be positive, got {self.fps}")
-        self.rotations = r
-        if self.root_translation is None:
-            self.root_translation = np.zeros((len(r), 3))
-        t = np.asarray(self.root_translation, dtype=np.float64)
-        if t.shape != (len(r), 3) or not np.isfinite(t).all():
-            raise TryonError(f"motion {self.name}: root_translation must be finite [T, 3] = [{len(r)}, 3], got {t.shape}")
-        self.root_translation = t
-
-    @property
-    def num_frames(self) -> int:
-        return len(self.rotations)
-
-    @property
-    def duration(self) -> float:
-        return (self.num_frames - 1) / self.fps
-
-    def pose_matrices(self, shape: BodyShape) -> np.ndarray:
-        """Rotations [T,J_body,3,3] for the bones of `shape` (unnamed bones: identity)."""
-        R = np.tile(identity_pose(shape)[None], (self.num_frames, 1, 1, 1))
-        index = {lab: i for i, lab in enumerate(shape.bone_labels)}
-        unknown = [lab for lab in self.bone_labels if lab not in index]
-        if len(unknown) == len(self.bone_labels):
-            raise TryonError(f"motion {self.name}: none of its bones exist in the body (e.g. {unknown[:3]})")
-        cols = [j for j, lab in enumerate(self.bone_labels) if lab in index]
-        R[:, [index[self.bone_labels[j]] for j in cols]] = axis_angle(self.rotations[:, cols])
-        return R
-
-    def save(self, path: str | Path) -> Path:
-        with atomic_write(path, "wb") as fh:
-            np.savez_compressed(fh, rotations=self.rotations, bone_labels=np.array(self.bone_labels), fps=self.fps,
-                                root_translation=self.root_translation, name=self.name)
-        return Path(path)
-
-
-def load_motion(source: str | Path, shape: BodyShape | None = None) -> BodyMotion:
-    """A built-in motion by name, or a motion file (.npz, or .bvh retargeted onto `shape`)."""
+def load_motion(source: str | Path, shape: BodyShape | None = None, allow_large: bool | None = None) -> BodyMotion:
+    """A built-in motion by name, or a motion file (.npz, or .bvh retargeted onto `shape`);
+    `allow_large` lifts the file size limits of `tryon.limits`."""
     text = str(source)
     if text in BUILTIN_MOTIONS:
         ref = resources.files("tryon.body").joinpath(f"data/motions/{text}.npz")
@@ -98,21 +51,24 @@ def load_motion(source: str | Path, shape: BodyShape | None = None) -> BodyMotio
 
         if shape is None:
             raise TryonError(f"motion {path}: a BVH file needs the body it is retargeted onto")
-        return retarget(load_bvh(path), shape)
+        return retarget(load_bvh(path, allow_large), shape)
     if path.suffix.lower() != ".npz":
         raise InputFileError(f"motion {path}: use a .npz (rotations, bone_labels, fps) or a .bvh file")
-    return _load_npz(path)
+    return _load_npz(path, allow_large)
 
 
-def _load_npz(path: Path) -> BodyMotion:
-    try:
-        d = np.load(path, allow_pickle=False)
-        rot, labels, fps = d["rotations"], [str(x) for x in d["bone_labels"]], float(d["fps"])
-        trans = d["root_translation"] if "root_translation" in d.files else None
-        name = str(d["name"]) if "name" in d.files else path.stem
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputFileError(f"motion file {path}: unreadable or missing keys rotations / bone_labels / fps ({exc})") from exc
-    return BodyMotion(rot, labels, fps, trans, name)
+def _load_npz(path: Path, allow_large: bool | None = None) -> BodyMotion:
+    from tryon.io import npz
+
+    arrays = npz.read_npz(path, "motion file", allow_large)
+    source = f"motion file {path}"
+    if not {"rotations", "bone_labels", "fps"} <= set(arrays):
+        raise InputFileError(f"{source}: needs the arrays rotations / bone_labels / fps, it has {sorted(arrays)}")
+    labels = npz.text_list(arrays, "bone_labels", source)
+    rot = npz.float_array(arrays, "rotations", source, (None, len(labels), 3))
+    fps = npz.scalar(arrays, "fps", source, MIN_FPS, MAX_FPS, "frames per second")
+    trans = npz.float_array(arrays, "root_translation", source, (len(rot), 3)) if "root_translation" in arrays else None
+    return BodyMotion(rot, labels, fps, trans, npz.text(arrays, "name", source, path.stem, 100))
 
 
 def slerp_poses(Ra: np.ndarray, Rb: np.ndarray, s: float) -> np.ndarray:
@@ -131,8 +87,16 @@ def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarra
     """Skinned body vertices [K,V,3] and their times [K]: `blend_time` seconds from
     `start_pose` [J,3,3] into the motion's first frame (smoothstep slerp), then the motion."""
     fps = fps or motion.fps
-    poses = motion.pose_matrices(shape)
+    if not (MIN_FPS <= fps <= MAX_FPS and 0 <= blend_time <= MAX_BLEND_TIME):
+        raise TryonError(f"motion {motion.name}: need {MIN_FPS:g} <= fps <= {MAX_FPS:g} and 0 <= blend_time <= "
+                         f"{MAX_BLEND_TIME:g} s, got fps {fps} and blend_time {blend_time}")
     n_blend = max(1, int(round(blend_time * fps)))
+    count = n_blend + int(motion.duration * fps + 1e-9) + 1
+    what = f"motion {motion.name} at {fps:g} fps"
+    check_limit(f"{what}: skinned frames", count, LIMITS.max_frames, "max_frames")
+    check_limit(f"{what}: skinned frames (bytes)", 24 * count * shape.vertices.shape[0], LIMITS.max_memory_bytes,
+                "max_memory_bytes")
+    poses = motion.pose_matrices(shape)
     frames, times = [], []
     verts = shape.vertices.detach()
     for k in range(n_blend):

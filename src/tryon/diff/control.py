@@ -29,7 +29,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +40,7 @@ from tqdm import tqdm
 from tryon.diff.rollout import Controls, DiffSimulator, Trajectory
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_output_dir, atomic_write, check_output_dir
+from tryon.io.json_safe import dumps_json
 from tryon.sim.mesh import grid_corner
 from tryon.sim.scene import Scene, parse_scene
 
@@ -313,5 +313,5 @@ def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants
         for name, task, traj in previews if preview is not None else ():  # e.g. sim_pictures.trajectory_gif
             preview(tmp / name, task.scene, traj)
         with atomic_write(tmp / "report.json") as fh:
-            json.dump(report, fh, indent=2)
+            fh.write(dumps_json(report, indent=2))
     return report

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +41,7 @@ from tryon.errors import TryonError
 from tryon.fabric.presets import load_fabric, mean_preset_fabric, save_fabric
 from tryon.fabric.wang2011 import WangFabric
 from tryon.io.atomic import atomic_output_dir, atomic_path, atomic_write, check_output_dir
+from tryon.io.json_safe import dumps_json
 from tryon.sim.forces.wind import wind_forces
 from tryon.sim.model import ClothModel
 from tryon.sim.scene import load_scene
@@ -303,5 +303,5 @@ def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str
         if comparison_picture is not None:  # e.g. tryon.render.sim_pictures.sequence_comparison_png
             comparison_picture(tmp / "observed_vs_fit.png", obs.faces, obs.positions, frames)
         with atomic_write(tmp / "report.json") as fh:
-            json.dump(report, fh, indent=2)
+            fh.write(dumps_json(report, indent=2))
     return report

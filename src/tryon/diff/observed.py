@@ -25,10 +25,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tryon.errors import TryonError
+from tryon.errors import InputFileError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.fabric.presets import load_fabric
 from tryon.io.atomic import atomic_write
+from tryon.limits import LIMITS, check_limit
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import FrameRecorder, run
 from tryon.sim.mesh import ClothMesh
@@ -81,53 +82,50 @@ def default_dt(frame_time: float) -> float:
     return frame_time / max(1, math.ceil(frame_time / MAX_DT - 1e-9))
 
 
-def _scalar(data, key: str, path: str) -> float:
-    value = np.asarray(data[key], dtype=np.float64)
-    if value.size != 1 or not np.isfinite(value).all():
-        raise TryonError(f"{path}: {key!r} must be one finite number, got shape {list(value.shape)}")
-    return float(value.reshape(()))
+MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-3, 10.0  # s
+MIN_DT = 1e-5  # s
 
 
-def _vector(data, key: str, path: str) -> np.ndarray:
-    value = np.asarray(data[key], dtype=np.float64)
-    if value.shape != (3,) or not np.isfinite(value).all():
-        raise TryonError(f"{path}: {key!r} must be 3 finite numbers, got shape {list(value.shape)}")
-    return value
+def load_observed(path: str | Path, allow_large: bool | None = None) -> Observation:
+    """Read and check an observed ``.npz`` (module docstring); raises `InputFileError`
+    naming the file and key, or `LimitError` for sequences beyond `tryon.limits`."""
+    from tryon.io import npz
 
-
-def load_observed(path: str | Path) -> Observation:
-    """Read and check an observed ``.npz`` (module docstring)."""
-    path = str(path)
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise TryonError(f"observed file {path}: cannot be read as .npz ({exc})") from exc
-    missing = [k for k in REQUIRED_KEYS if k not in data.files]
+    source = f"observed file {path}"
+    data = npz.read_npz(path, "observed file", allow_large)
+    missing = [k for k in REQUIRED_KEYS if k not in data]
     if missing:
-        raise TryonError(f"observed file {path}: missing keys {missing}; required: {list(REQUIRED_KEYS)} "
-                         f"(make one with `tryon fit-fabric --make-observed PRESET OUT.npz`)")
-    pos = np.asarray(data["positions"], dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[0] < 2 or not np.isfinite(pos).all():
-        raise TryonError(f"{path}: 'positions' must be finite [T>=2, N, 3], got shape {list(pos.shape)}")
-    n = pos.shape[1]
-    faces = np.asarray(data["faces"], dtype=np.int64)
-    if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= n:
-        raise TryonError(f"{path}: 'faces' must be [F, 3] vertex indices below {n}, got shape {list(faces.shape)}")
-    uv = np.asarray(data["uv"], dtype=np.float64)
-    if uv.shape != (n, 2):
-        raise TryonError(f"{path}: 'uv' must be [{n}, 2] (one material coordinate per vertex), got {list(uv.shape)}")
-    pinned = np.asarray(data["pinned"], dtype=np.int64).reshape(-1)
-    if len(pinned) and (pinned.min() < 0 or pinned.max() >= n):
-        raise TryonError(f"{path}: 'pinned' vertex indices must lie in [0, {n - 1}]")
-    frame_time = _scalar(data, "frame_time", path)
-    if frame_time <= 0:
-        raise TryonError(f"{path}: 'frame_time' must be positive, got {frame_time}")
-    dt = _scalar(data, "dt", path) if "dt" in data.files else default_dt(frame_time)
-    if not 0 < dt <= frame_time:
-        raise TryonError(f"{path}: 'dt' must lie in (0, frame_time], got {dt}")
-    return Observation(pos, faces, uv, pinned, frame_time, _vector(data, "gravity", path),
-                       _vector(data, "wind_velocity", path), _scalar(data, "wind_density", path),
-                       _scalar(data, "wind_drag", path), dt, str(data["fabric"]) if "fabric" in data.files else "")
+        raise InputFileError(f"{source}: missing keys {missing}; required: {list(REQUIRED_KEYS)} "
+                             f"(make one with `tryon fit-fabric --make-observed PRESET OUT.npz`)")
+    pos = npz.float_array(data, "positions", source, (None, None, 3))
+    T, n = pos.shape[0], pos.shape[1]
+    if T < 2 or n < 3:
+        raise InputFileError(f"{source}: 'positions' needs at least 2 frames of 3 vertices, got shape {list(pos.shape)}")
+    check_limit(f"{source}: frames", T, LIMITS.max_frames, "max_frames", allow_large)
+    check_limit(f"{source}: vertices", n, LIMITS.max_vertices, "max_vertices", allow_large)
+    faces = npz.int_array(data, "faces", source, (None, 3), below=n)
+    if len(faces) == 0:
+        raise InputFileError(f"{source}: 'faces' is empty; the cloth needs triangles")
+    uv = npz.float_array(data, "uv", source, (n, 2))
+    pinned = npz.int_array(data, "pinned", source, None, below=n).reshape(-1)
+    frame_time = npz.scalar(data, "frame_time", source, MIN_FRAME_TIME, MAX_FRAME_TIME, "s")
+    dt = npz.scalar(data, "dt", source, MIN_DT, frame_time, "s") if "dt" in data else default_dt(frame_time)
+    steps = (T - 1) * max(1, int(round(frame_time / dt)))
+    check_limit(f"{source}: simulation steps per run ((frames - 1) * frame_time / dt)", steps, LIMITS.max_steps,
+                "max_steps", allow_large)
+    gravity, wind = _vector(data, "gravity", source, 1000.0), _vector(data, "wind_velocity", source, 1000.0)
+    return Observation(pos, faces, uv, pinned, frame_time, gravity, wind,
+                       npz.scalar(data, "wind_density", source, 0.0, 100.0, "kg/m^3"),
+                       npz.scalar(data, "wind_drag", source, 0.0, 100.0), dt, npz.text(data, "fabric", source, "", 200))
+
+
+def _vector(data: dict, key: str, source: str, bound: float) -> np.ndarray:
+    from tryon.io import npz
+
+    value = npz.float_array(data, key, source, (3,))
+    if np.abs(value).max() > bound:
+        raise InputFileError(f"{source}: {key!r} components must lie within +-{bound:g}, got {value.tolist()}")
+    return value
 
 
 def save_observed(path: str | Path, obs: Observation) -> None:

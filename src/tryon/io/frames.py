@@ -61,20 +61,20 @@ def load_frames_npz(path: PathLike) -> dict[str, np.ndarray]:
     Always has ``positions [T,N,3]`` and ``faces [F,3]``; ``uv``, ``times`` and extras
     when they were saved.
     """
+    from tryon.io.npz import read_npz
+
     src = Path(path)
-    if not src.is_file():
-        raise InputFileError(f"frames file {src} does not exist; check the path")
-    try:
-        with np.load(src, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputFileError(f"frames file {src} is not a readable npz archive ({exc}); re-create it") from exc
+    arrays = read_npz(src, "frames file")
     missing = [k for k in ("positions", "faces") if k not in arrays]
     if missing:
         raise InputFileError(f"frames file {src} lacks {missing}; it was not written by save_frames_npz")
-    p = arrays["positions"]
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise InputFileError(f"frames file {src}: positions must be [T, N, 3], got shape {p.shape}")
+    p, f = arrays["positions"], arrays["faces"]
+    if p.ndim != 3 or p.shape[2] != 3 or p.dtype.kind not in "fiu":
+        raise InputFileError(f"frames file {src}: positions must be numbers [T, N, 3], got {p.dtype} {p.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or (f.size and f.dtype.kind not in "iu"):
+        raise InputFileError(f"frames file {src}: faces must be integer indices [F, 3], got {f.dtype} {f.shape}")
+    if f.size and (f.min() < 0 or f.max() >= p.shape[1]):
+        raise InputFileError(f"frames file {src}: face indices must lie in [0, {p.shape[1] - 1}]")
     return arrays
 
 

@@ -122,7 +122,11 @@ class _ObjParser:
             self.faces_without_uv += 1
 
 
-def _read_text(path: Path) -> str:
+def _read_text(path: Path, allow_large: bool | None = None) -> str:
+    from tryon.limits import check_file_size
+
+    if path.exists():
+        check_file_size(path, "OBJ file", allow_large)
     try:
         return path.read_text(encoding="utf-8", errors="replace")
     except FileNotFoundError:
@@ -149,17 +153,18 @@ def _per_vertex_uv(n_vertices: int, faces: np.ndarray, face_uv: np.ndarray, coor
     return uv if np.array_equal(uv[corner_v], corner_uv) else None
 
 
-def read_obj(path: PathLike) -> ObjMesh:
+def read_obj(path: PathLike, allow_large: bool | None = None) -> ObjMesh:
     """Read a Wavefront OBJ file; polygons are triangulated as fans.
 
     Supports ``f v``, ``f v/vt``, ``f v/vt/vn`` and ``f v//vn`` corners and negative
     (relative) indices. Raises :class:`InputFileError` naming the file and line for
     malformed lines and out-of-range indices, :class:`MeshError` for NaN/inf
-    coordinates or a file without faces.
+    coordinates or a file without faces, :class:`LimitError` for files larger than
+    ``max_file_bytes`` (unless `allow_large`).
     """
     path = Path(path)
     parser = _ObjParser(path)
-    for lineno, raw in enumerate(_read_text(path).splitlines(), start=1):
+    for lineno, raw in enumerate(_read_text(path, allow_large).splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if line:
             parser.parse_line(lineno, line)

@@ -198,4 +198,25 @@ def mesh_from_obj(path: str | Path, name: str | None = None) -> ClothMesh:
             f"coordinates (in metres) for every vertex"
         )
     vertices, faces, uv = split_by_uv(obj)
+    check_material_scale(vertices, faces, uv, str(path))
     return ClothMesh(torch.from_numpy(vertices), torch.from_numpy(uv), torch.from_numpy(faces), name=name or Path(path).stem)
+
+
+MATERIAL_SCALE_RANGE = (1 / 3, 3.0)  # median 3D / material edge length of a cloth at rest
+
+
+def check_material_scale(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, name: str) -> None:
+    """Refuse material coordinates on another scale than the 3D mesh (0-1 texture
+    coordinates on a 10 cm cloth would start the run at -90 % strain)."""
+    x, faces, uv = np.asarray(x, np.float64), np.asarray(faces, np.int64), np.asarray(uv, np.float64)
+    d3 = np.concatenate([np.linalg.norm(x[faces[:, a]] - x[faces[:, b]], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))])
+    duv = np.concatenate([np.linalg.norm(uv[faces[:, a]] - uv[faces[:, b]], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))])
+    ok = (duv > 0) & np.isfinite(duv) & np.isfinite(d3)
+    if not ok.any():
+        return  # degenerate material coordinates: validate_mesh names the face
+    ratio = float(np.median(d3[ok] / duv[ok]))
+    low, high = MATERIAL_SCALE_RANGE
+    if not low <= ratio <= high:
+        raise MeshError(f"{name}: the 'vt' coordinates are not material coordinates in metres (3D edges are {ratio:.3g}x "
+                        f"their vt length, a {100 * (ratio - 1):+.0f} % strain at the start); 'vt' must be in "
+                        "metres (the flat cloth's size), not 0-1 texture coordinates")

@@ -1,5 +1,7 @@
 """Declarative scenes: a YAML file (or a built-in example) describing a cloth, its fabric,
-pins and handles, wind, obstacles with motion, time step and duration.
+pins and handles, wind, obstacles with motion, time step and duration. The full reference,
+generated from the schema in `tryon.sim.scene_schema`, is docs/SCENE_FORMAT.md; the limits
+of `tryon.limits` are checked before anything is built.
 
 Example (every key but `cloth` is optional):
 
@@ -30,24 +32,24 @@ solver: {linear: auto, damping: 0.0, max_substep_depth: 3}
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import yaml
 
-from tryon.errors import SceneError, TryonError
+from tryon.errors import InputFileError, SceneError, TryonError
 from tryon.fabric import load_fabric
+from tryon.limits import LIMITS, check_limit, check_run
 from tryon.sim import obstacles as obs
 from tryon.sim.integrator import StepOptions
 from tryon.sim.mesh import ClothMesh, grid_corner, grid_mesh, mesh_from_obj
 from tryon.sim.model import ClothModel, CollisionSettings, PinGroup, Wind
 from tryon.sim.origin import ClothOrigin
+from tryon.sim.scene_schema import (ClothSpec, MotionSpec, ObstacleSpec, SceneSpec, safe_name, validate_scene_spec)
 
-TOP_KEYS = {"name", "description", "dt", "duration", "frame_time", "gravity", "cloth", "wind", "obstacles", "collision", "solver"}
+TOP_KEYS = set(SceneSpec.model_fields)
 
 
 @dataclass
@@ -71,209 +73,168 @@ class Scene:
         return max(1, int(round(self.frame_time / self.dt)))
 
 
-def load_scene(path: str | Path) -> Scene:
+def load_scene(path: str | Path, allow_large: bool | None = None) -> Scene:
+    """A scene from a YAML file (format: docs/SCENE_FORMAT.md); `allow_large` lifts the
+    overridable limits of `tryon.limits`."""
+    from tryon.io.safe_yaml import load_yaml
+
     path = Path(path)
     try:
-        text = path.read_text()
+        size = path.stat().st_size
+        check_limit(f"scene file {path} (bytes)", size, LIMITS.max_yaml_bytes, "max_yaml_bytes", overridable=False)
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise SceneError(f"scene file {path}: cannot be read ({exc.strerror})") from exc
+        raise SceneError(f"scene file {path}: cannot be read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"scene file {path}: is not UTF-8 text; save it as a UTF-8 YAML file") from None
     try:
-        spec = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SceneError(f"scene file {path}: malformed YAML ({str(exc).splitlines()[0]})") from exc
-    if not isinstance(spec, dict):
-        raise SceneError(f"scene file {path}: the top level must be a mapping with at least a 'cloth' key")
-    return parse_scene(spec, base_dir=path.parent, default_name=path.stem)
+        spec = load_yaml(text, f"scene file {path}")
+    except InputFileError as exc:
+        raise SceneError(str(exc)) from None
+    return parse_scene(spec, base_dir=path.parent, default_name=path.stem, allow_large=allow_large,
+                       source=f"scene file {path}")
 
 
-def parse_scene(spec: dict, base_dir: Path | None = None, default_name: str = "scene") -> Scene:
-    spec = copy.deepcopy(spec)
-    unknown = set(spec) - TOP_KEYS
-    if unknown:
-        raise SceneError(f"scene: unknown key(s) {sorted(unknown)}; allowed: {sorted(TOP_KEYS)}")
-    if "cloth" not in spec:
-        raise SceneError("scene: missing the 'cloth' section (a grid or a mesh plus a fabric)")
+def parse_scene(spec: Any, base_dir: Path | None = None, default_name: str = "scene", allow_large: bool | None = None,
+                source: str = "scene") -> Scene:
+    """A scene from a parsed mapping: checked against the schema and the limits before
+    anything is built."""
+    s = validate_scene_spec(spec, source)
     base_dir = base_dir or Path(".")
-    dt = _positive(spec.get("dt", 0.01), "dt")
-    duration = _positive(spec.get("duration", 1.0), "duration")
-    frame_time = _positive(spec.get("frame_time", max(dt, 0.04)), "frame_time")
-    if frame_time < dt:
-        raise SceneError(f"scene: frame_time ({frame_time}) must be at least dt ({dt})")
-    mesh, corner_res = _parse_cloth_mesh(spec["cloth"], base_dir)
-    fabric = _parse_fabric(spec["cloth"].get("fabric", "gray-interlock"))
-    pins = _parse_pins(spec["cloth"], mesh, corner_res)
+    name = s.name or safe_name(default_name)
+    frame_time = s.effective_frame_time
+    _check_limits(s, name, allow_large)
+    mesh, corner_res = _build_cloth_mesh(s.cloth, base_dir, source)
+    check_limit(f"{source}: cloth vertices", mesh.num_vertices, LIMITS.max_vertices, "max_vertices", allow_large)
+    fabric = _parse_fabric(s.cloth.fabric)
+    pins = _parse_pins(s.cloth, mesh, corner_res)
+    solver = s.solver
     model = ClothModel(
         mesh,
         fabric,
         pins=pins,
-        gravity=tuple(_vec(spec.get("gravity", [0.0, 0.0, -9.8]), "gravity")),
-        wind=_parse_wind(spec.get("wind")),
-        obstacles=[_parse_obstacle(o, i, base_dir) for i, o in enumerate(spec.get("obstacles") or [])],
-        collision=_parse_collision(spec.get("collision")),
-        damping=float((spec.get("solver") or {}).get("damping", 0.0)),
+        gravity=s.gravity,
+        wind=Wind(s.wind.velocity, s.wind.density, s.wind.drag) if s.wind else Wind(),
+        obstacles=[_build_obstacle(o, i, base_dir, allow_large) for i, o in enumerate(s.obstacles)],
+        collision=CollisionSettings(**s.collision.model_dump()) if s.collision else CollisionSettings(),
+        damping=solver.damping if solver else 0.0,
     )
-    solver = spec.get("solver") or {}
-    options = StepOptions(
-        linear_solver=str(solver.get("linear", "auto")),
-        max_substep_depth=int(solver.get("max_substep_depth", 3)),
-        pcg_tol=float(solver.get("pcg_tol", 1e-4)),
-    )
-    return Scene(
-        name=str(spec.get("name", default_name)), model=model, dt=dt, duration=duration, frame_time=frame_time,
-        options=options, description=str(spec.get("description", "")), spec=spec,
-    )
+    options = StepOptions(linear_solver=solver.linear, max_substep_depth=solver.max_substep_depth,
+                          pcg_tol=solver.pcg_tol) if solver else StepOptions()
+    return Scene(name=name, model=model, dt=s.dt, duration=s.duration, frame_time=frame_time, options=options,
+                 description=s.description, spec=s.model_dump(mode="json", exclude_unset=True))
 
 
-def _positive(value: Any, key: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise SceneError(f"scene: '{key}' must be a number, got {value!r}") from exc
-    if not np.isfinite(v) or v <= 0:
-        raise SceneError(f"scene: '{key}' must be a positive number, got {value!r}")
-    return v
+def _estimated_obstacle_vertices(o: Any) -> int:
+    if o.type == "sphere":
+        return 10 * 4 ** o.subdivisions + 2
+    if o.type == "plane":
+        return (o.divisions + 1) ** 2
+    return 8
 
 
-def _vec(value: Any, key: str, n: int = 3) -> list[float]:
-    try:
-        out = [float(a) for a in value]
-    except (TypeError, ValueError) as exc:
-        raise SceneError(f"scene: '{key}' must be a list of {n} numbers, got {value!r}") from exc
-    if len(out) != n or not all(np.isfinite(out)):
-        raise SceneError(f"scene: '{key}' must be a list of {n} finite numbers, got {value!r}")
-    return out
+def _check_limits(s: SceneSpec, name: str, allow_large: bool | None) -> None:
+    """Steps, frames, vertices and memory of the run, from the spec alone."""
+    steps = max(1, int(round(s.duration / s.dt)))
+    per_frame = max(1, int(round(s.effective_frame_time / s.dt)))
+    vertices = 0
+    if s.cloth.grid is not None:
+        nu, nv = s.cloth.grid.resolution
+        check_limit(f"scene {name}: cloth.grid.resolution", max(nu, nv), LIMITS.max_grid_resolution,
+                    "max_grid_resolution (vertices per side)", allow_large)
+        vertices = nu * nv
+    obstacle_vertices = sum(_estimated_obstacle_vertices(o) for o in s.obstacles)
+    check_run(f"scene {name}", steps, steps // per_frame + 2, vertices, obstacle_vertices, allow_large)
 
 
-def _parse_cloth_mesh(cloth: dict, base_dir: Path) -> tuple[ClothMesh, tuple[int, int] | None]:
-    if not isinstance(cloth, dict):
-        raise SceneError("scene: 'cloth' must be a mapping with 'grid' or 'mesh'")
-    if "grid" in cloth:
-        g = cloth["grid"] or {}
-        res = g.get("resolution", [32, 32])
-        if isinstance(res, int):
-            res = [res, res]
-        res = (int(res[0]), int(res[1]))
-        size = _vec(g.get("size", [1.0, 1.0]), "cloth.grid.size", 2)
-        origin = _vec(g.get("origin", [0.0, 0.0, 0.0]), "cloth.grid.origin")
-        return grid_mesh(res, tuple(size), tuple(origin), str(g.get("orientation", "horizontal"))), res
-    if "mesh" in cloth:
-        path = Path(cloth["mesh"])
-        if not path.is_absolute():
-            path = base_dir / path
-        if not path.exists():
-            raise SceneError(f"scene: cloth mesh file {path} does not exist")
-        mesh = mesh_from_obj(path)
-        tr = cloth.get("translate")
-        if tr is not None:
-            mesh = ClothMesh(mesh.x + torch.tensor(_vec(tr, "cloth.translate"), dtype=mesh.x.dtype), mesh.uv, mesh.faces, mesh.name)
-        return mesh, None
-    raise SceneError("scene: 'cloth' needs either 'grid' or 'mesh'")
+def _build_cloth_mesh(cloth: ClothSpec, base_dir: Path, source: str) -> tuple[ClothMesh, tuple[int, int] | None]:
+    if cloth.grid is not None:
+        g = cloth.grid
+        return grid_mesh(g.resolution, g.size, g.origin, g.orientation), g.resolution
+    path = Path(cloth.mesh)
+    if not path.is_absolute():
+        path = base_dir / path
+    if not path.is_file():
+        raise SceneError(f"{source}: cloth mesh file {path} does not exist")
+    mesh = mesh_from_obj(path)
+    if cloth.translate is not None:
+        mesh = ClothMesh(mesh.x + torch.tensor(cloth.translate, dtype=mesh.x.dtype), mesh.uv, mesh.faces, mesh.name)
+    return mesh, None
 
 
 def _parse_fabric(spec: Any):
+    if hasattr(spec, "model_dump"):
+        spec = spec.model_dump(exclude_unset=True)
     try:
         return load_fabric(spec)
     except TryonError:
         raise
-    except Exception as exc:  # malformed dicts
-        raise SceneError(f"scene: cloth.fabric {spec!r} is not a valid fabric ({exc})") from exc
+    except Exception as exc:  # malformed inline fabric data
+        raise SceneError(f"scene: cloth.fabric is not a valid fabric ({type(exc).__name__}: {exc})") from None
 
 
-def _vertex_list(items: Any, mesh: ClothMesh, corner_res, key: str) -> torch.Tensor:
-    if not isinstance(items, (list, tuple)):
-        raise SceneError(f"scene: '{key}' must be a list of vertex indices or grid corner names")
+def _vertex_list(items: list, mesh: ClothMesh, corner_res, key: str) -> torch.Tensor:
     out = []
     for it in items:
         if isinstance(it, str):
             if corner_res is None:
                 raise SceneError(f"scene: '{key}': corner names like {it!r} only work with a grid cloth")
-            try:
-                out.append(grid_corner(corner_res, it))
-            except TryonError as exc:
-                raise SceneError(f"scene: '{key}': {exc}") from exc
+            out.append(grid_corner(corner_res, it))
         else:
-            i = int(it)
-            if i < 0 or i >= mesh.num_vertices:
-                raise SceneError(f"scene: '{key}': vertex {i} out of range [0, {mesh.num_vertices - 1}]")
-            out.append(i)
+            if it >= mesh.num_vertices:
+                raise SceneError(f"scene: '{key}': vertex {it} out of range [0, {mesh.num_vertices - 1}]")
+            out.append(it)
     return torch.tensor(out, dtype=torch.int64)
 
 
-def _parse_pins(cloth: dict, mesh: ClothMesh, corner_res) -> list[PinGroup]:
+def _parse_pins(cloth: ClothSpec, mesh: ClothMesh, corner_res) -> list[PinGroup]:
     groups = []
-    if cloth.get("pins"):
-        groups.append(PinGroup(_vertex_list(cloth["pins"], mesh, corner_res, "cloth.pins")))
-    for k, h in enumerate(cloth.get("handles") or []):
-        if not isinstance(h, dict) or "vertices" not in h:
-            raise SceneError(f"scene: cloth.handles[{k}] needs 'vertices' and optionally 'motion'")
-        groups.append(PinGroup(_vertex_list(h["vertices"], mesh, corner_res, f"cloth.handles[{k}].vertices"), _parse_motion(h.get("motion"), f"cloth.handles[{k}]")))
+    if cloth.pins:
+        groups.append(PinGroup(_vertex_list(cloth.pins, mesh, corner_res, "cloth.pins")))
+    for k, h in enumerate(cloth.handles):
+        groups.append(PinGroup(_vertex_list(h.vertices, mesh, corner_res, f"cloth.handles[{k}].vertices"), _motion(h.motion)))
     return groups
 
 
-def _parse_motion(spec: Any, key: str) -> obs.Motion:
+def _motion(spec: MotionSpec | None) -> obs.Motion:
     if spec is None:
         return obs.Motion()
-    if not isinstance(spec, dict):
-        raise SceneError(f"scene: {key}.motion must be a mapping")
-    allowed = {"velocity", "angular_velocity_deg", "axis", "pivot", "start", "stop"}
-    unknown = set(spec) - allowed
-    if unknown:
-        raise SceneError(f"scene: {key}.motion: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
-    return obs.Motion(
-        velocity=np.array(_vec(spec.get("velocity", [0, 0, 0]), f"{key}.motion.velocity")),
-        angular_velocity_deg=float(spec.get("angular_velocity_deg", 0.0)),
-        axis=np.array(_vec(spec.get("axis", [0, 0, 1]), f"{key}.motion.axis")),
-        pivot=np.array(_vec(spec.get("pivot", [0, 0, 0]), f"{key}.motion.pivot")),
-        start=float(spec.get("start", 0.0)),
-        stop=float(spec.get("stop", float("inf"))),
-    )
+    return obs.Motion(velocity=np.array(spec.velocity), angular_velocity_deg=spec.angular_velocity_deg,
+                      axis=np.array(spec.axis), pivot=np.array(spec.pivot), start=spec.start,
+                      stop=float("inf") if spec.stop is None else spec.stop)
 
 
-def _parse_obstacle(spec: Any, i: int, base_dir: Path) -> obs.Obstacle:
-    key = f"obstacles[{i}]"
-    if not isinstance(spec, dict) or "type" not in spec:
-        raise SceneError(f"scene: {key} must be a mapping with a 'type' (sphere, box, plane, pyramid, mesh)")
-    kind = spec["type"]
-    name = str(spec.get("name", f"{kind}{i}"))
-    motion = _parse_motion(spec.get("motion"), key)
-    try:
-        if kind == "sphere":
-            return obs.sphere(_vec(spec.get("center", [0, 0, 0]), f"{key}.center"), float(spec["radius"]), int(spec.get("subdivisions", 3)), name, motion)
-        if kind == "box":
-            return obs.box(_vec(spec.get("center", [0, 0, 0]), f"{key}.center"), _vec(spec["size"], f"{key}.size"), name, motion)
-        if kind == "plane":
-            return obs.plane(_vec(spec.get("point", [0, 0, 0]), f"{key}.point"), _vec(spec.get("normal", [0, 0, 1]), f"{key}.normal"), float(spec.get("size", 4.0)), int(spec.get("divisions", 8)), name, motion)
-        if kind == "pyramid":
-            return obs.funnel(_vec(spec.get("apex", [0, 0, 0]), f"{key}.apex"), float(spec["rim_size"]), float(spec["height"]), name, motion)
-        if kind == "mesh":
-            path = Path(spec["path"])
-            return obs.mesh_obstacle(path if path.is_absolute() else base_dir / path, name, motion)
-    except KeyError as exc:
-        raise SceneError(f"scene: {key} ({kind}) is missing the key {exc.args[0]!r}") from exc
-    raise SceneError(f"scene: {key} has unknown type {kind!r}; use sphere, box, plane, pyramid or mesh")
+def _build_obstacle(o: ObstacleSpec, i: int, base_dir: Path, allow_large: bool | None) -> obs.Obstacle:
+    name = o.name or f"{o.type}{i}"
+    motion = _motion(o.motion)
+    if o.type == "sphere":
+        return obs.sphere(o.center, o.radius, o.subdivisions, name, motion)
+    if o.type == "box":
+        return obs.box(o.center, o.size, name, motion)
+    if o.type == "plane":
+        return obs.plane(o.point, o.normal, o.size, o.divisions, name, motion)
+    if o.type == "pyramid":
+        return obs.funnel(o.apex, o.rim_size, o.height, name, motion)
+    return _mesh_obstacle(o.path, base_dir, name, motion, i, allow_large)
 
 
-def _parse_wind(spec: Any) -> Wind:
-    if spec is None:
-        return Wind()
-    if not isinstance(spec, dict):
-        raise SceneError("scene: 'wind' must be a mapping {velocity, density, drag}")
-    return Wind(tuple(_vec(spec.get("velocity", [0, 0, 0]), "wind.velocity")), float(spec.get("density", 1.0)), float(spec.get("drag", 0.0)))
+def _mesh_obstacle(path_text: str, base_dir: Path, name: str, motion: obs.Motion, i: int,
+                   allow_large: bool | None) -> obs.Obstacle:
+    from tryon.limits import check_file_size
 
-
-def _parse_collision(spec: Any) -> CollisionSettings:
-    if spec is None:
-        return CollisionSettings()
-    if not isinstance(spec, dict):
-        raise SceneError("scene: 'collision' must be a mapping")
-    allowed = set(CollisionSettings.__dataclass_fields__)
-    unknown = set(spec) - allowed
-    if unknown:
-        raise SceneError(f"scene: collision: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
-    cs = CollisionSettings(**spec)
-    if cs.thickness <= 0:
-        raise SceneError(f"scene: collision.thickness must be positive, got {cs.thickness}")
-    return cs
+    path = Path(path_text)
+    path = path if path.is_absolute() else base_dir / path
+    if not path.is_file():
+        raise SceneError(f"scene: obstacles[{i}] mesh file {path} does not exist")
+    check_file_size(path, f"obstacles[{i}] mesh file", allow_large)
+    ob = obs.mesh_obstacle(path, name, motion)
+    check_limit(f"scene: obstacles[{i}] ({path})", len(ob.rest_vertices), LIMITS.max_obstacle_vertices,
+                "max_obstacle_vertices", allow_large)
+    if not np.isfinite(ob.rest_vertices).all():
+        raise SceneError(f"scene: obstacles[{i}] mesh {path} has NaN or infinite vertex coordinates")
+    if len(ob.faces) and (ob.faces.min() < 0 or ob.faces.max() >= len(ob.rest_vertices)):
+        raise SceneError(f"scene: obstacles[{i}] mesh {path} has face indices out of range")
+    return ob
 
 
 # ---------------------------------------------------------------------------- examples
@@ -337,7 +298,7 @@ def example_spec(name: str, resolution: int | None = None) -> dict:
     return EXAMPLES[name](resolution or default_res)
 
 
-def example_scene(name: str, resolution: int | None = None, **overrides: Any) -> Scene:
+def example_scene(name: str, resolution: int | None = None, allow_large: bool | None = None, **overrides: Any) -> Scene:
     """A built-in scene; `overrides` replace top-level keys (dt, duration, ...) and
     `fabric` replaces the cloth's fabric."""
     spec = example_spec(name, resolution)
@@ -345,4 +306,4 @@ def example_scene(name: str, resolution: int | None = None, **overrides: Any) ->
     if fabric is not None:
         spec["cloth"]["fabric"] = fabric
     spec.update({k: v for k, v in overrides.items() if v is not None})
-    return parse_scene(spec, default_name=name)
+    return parse_scene(spec, default_name=name, allow_large=allow_large)
