@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from tryon.io.atomic import atomic_write
+from tryon.io.json_safe import dumps_json
 
 TARGET_S = 60.0
 HEIGHT_CM = {"female": 165.0, "male": 178.0}
@@ -69,5 +70,5 @@ def run_drape_bench(json_path: str | Path, quick: bool = False, threads: int = 2
         records.append(rec)
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(json_path) as fh:
-        json.dump(records, fh, indent=2)
+        fh.write(dumps_json(records, indent=2))
     return records

@@ -22,7 +22,6 @@ cross-faded and plain joins.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -40,6 +39,7 @@ from tryon.parallel.partition import balanced_cuts, speedup_bounds, uniform_cuts
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import steps
 from tryon.sim.scene import Scene, example_scene
+from tryon.io.json_safe import dumps_json
 
 SCHEDULER_P = (8, 16, 32, 64, 128, 256, 512)
 DRAPE = {"height_cm": 172.0, "weight_kg": 70.0, "gender": "female", "garment": "tshirt", "size": "M",
@@ -353,7 +353,7 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
     payload = {"records": records, "scheduler": predictions, "cpu_count": os.cpu_count(),
                "note": "speedups measured on this machine are limited by its CPU cores (shared with other work)"}
     with atomic_write(json_path) as fh:
-        json.dump(payload, fh, indent=2, default=float)
+        fh.write(dumps_json(payload, indent=2))
     return records
 
 

@@ -5,7 +5,6 @@ steps on every built-in scene. A run passes when it stays finite, does not explo
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from tryon.sim.integrator import ImplicitEulerSolver, StepStats
 from tryon.sim.loop import steps
 from tryon.sim.metrics import state_metrics
 from tryon.sim.scene import EXAMPLES, example_scene
+from tryon.io.json_safe import dumps_json
 
 TIME_STEPS = (1 / 200, 1 / 30)
 MAX_SPEED = 50.0
@@ -65,7 +65,7 @@ def run_robustness_bench(out_json: str | Path, resolution: int = 16, duration: f
             tqdm.write(f"FAIL {scene_name} {fabric} dt={dt:.4f}: finite={r['finite']} max_speed={r['max_speed']:.1f} "
                        f"intersections={r['intersections']} {r['error']}")
     with atomic_write(out_json) as fh:
-        json.dump(records, fh, indent=2)
+        fh.write(dumps_json(records, indent=2))
     passed = sum(r["ok"] for r in records)
     retried = sum(r["retried"] for r in records)
     print(f"{passed}/{len(records)} runs passed ({retried} needed substeps) -> {out_json}")

@@ -17,6 +17,7 @@ from importlib import resources
 from pathlib import Path
 
 from tryon.io.atomic import atomic_write
+from tryon.io.json_safe import dumps_json
 
 SCENE_ANCHOR = {"hanging": "hang", "sphere-drop": "sphere"}
 
@@ -122,7 +123,7 @@ def run_sim_bench(out_json: str | Path, quick: bool = False, threads: list[int] 
             _print_row(rec)
     _compare_with_newton(records, grids, quick)
     with atomic_write(out_json) as fh:
-        json.dump(records, fh, indent=2)
+        fh.write(dumps_json(records, indent=2))
     print(f"wrote {out_json}")
     return records
 

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import json
+import os
 import sys
 from pathlib import Path
 
 from tryon.errors import TryonError
+from tryon.limits import ALLOW_LARGE_ENV
 from tryon.io.atomic import check_output_dir
+from tryon.io.json_safe import dumps_json
 
 DEFAULT_GRIDS = [16, 32, 64, 128]
 
@@ -71,6 +73,12 @@ def _check_positive(args: argparse.Namespace, *names: str) -> None:
 def _force_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true",
                    help="replace an existing --out folder even if tryon did not write it (never /, ~, . or its parents)")
+    _allow_large_arg(p)
+
+
+def _allow_large_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--allow-large", action="store_true",
+                   help="lift the limits on steps, frames, vertices, memory and file sizes (tryon.limits)")
 
 
 def _measurements(args: argparse.Namespace):
@@ -164,7 +172,7 @@ def _cmd_body_range(args: argparse.Namespace) -> int:
         from tryon.io.atomic import atomic_write
 
         with atomic_write(args.json) as fh:
-            json.dump(rows, fh, indent=2)
+            fh.write(dumps_json(rows, indent=2))
     for r in rows:
         print(f"{r['gender']:7s} BMI asked {r['bmi_asked']:5.1f} achieved {r['bmi_achieved']:5.1f}  distortion {r['mesh_distortion']:.2f}  "
               f"largest local change {r['largest_local_change']:.2f}  {'ok' if r['supported'] else 'outside the supported range'}")
@@ -180,7 +188,7 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
 
     rows = preset_summaries()
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(dumps_json(rows, indent=2))
         return 0
     print(f"{'name':20s} {'g/m2':>6s} {'stretch u/v/shear N/m':>22s} {'at 16% strain':>16s} {'bend u/v uN.m':>14s}  composition")
     for r in rows:
@@ -342,6 +350,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if getattr(args, "allow_large", False):
+        os.environ[ALLOW_LARGE_ENV] = "1"
     try:
         return int(args.func(args) or 0)
     except TryonError as exc:

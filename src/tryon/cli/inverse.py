@@ -73,6 +73,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--duration", type=float, default=1.0, help="seconds simulated for --make-observed")
     f.add_argument("--quiet", action="store_true")
     f.add_argument("--force", action="store_true", help="replace an existing --out folder tryon did not write")
+    f.add_argument("--allow-large", action="store_true",
+                   help="lift the limits on steps, frames, vertices, memory and file sizes (tryon.limits)")
     f.set_defaults(func=_cmd_fit_fabric)
 
     c = sub.add_parser("control", help="steer cloth by optimising forces through the differentiable simulator")

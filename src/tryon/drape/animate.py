@@ -12,7 +12,6 @@ last_frame.png.
 from __future__ import annotations
 
 import functools
-import json
 import shutil
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from tryon.garment.triangulate import remesh_pattern
 from tryon.sim.integrator import StepOptions
 from tryon.sim.origin import PatternOrigin
 from tryon.sim.scene import Scene
+from tryon.io.json_safe import dumps_json
 
 FRAME_TIME = 1.0 / 30.0
 
@@ -148,8 +148,8 @@ def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None 
         write_gif(tmp / "preview.gif", images, fps=1.0 / FRAME_TIME)
         render_state_png(scene, result.positions[-1], float(result.times[-1]), tmp / "last_frame.png")
         with atomic_write(tmp / "metrics.json") as fh:
-            json.dump(metrics, fh, indent=1)
+            fh.write(dumps_json(metrics, indent=1))
         with atomic_write(tmp / "report.json") as fh:
-            json.dump(report, fh, indent=2, default=float)
+            fh.write(dumps_json(report, indent=2))
     shutil.rmtree(work)
     return report

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +11,7 @@ from tryon.io.frames import save_frames_npz
 from tryon.io.mesh_io import write_glb, write_obj
 from tryon.render.colormap import add_colorbar, scalar_to_rgb
 from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
+from tryon.io.json_safe import dumps_json
 
 SKIN = (0.80, 0.68, 0.60)
 CLOTH = (0.27, 0.45, 0.72)
@@ -103,5 +103,5 @@ def write_outputs(result, out: str | Path, force: bool = False) -> dict:
                         body_vertices=bv, body_faces=bf, face_strain=result.strain, vertex_pressure=result.pressure)
         save_state(result, tmp / STATE_FILE)
         with atomic_write(tmp / "report.json") as fh:
-            json.dump(report, fh, indent=2, default=float)
+            fh.write(dumps_json(report, indent=2))
     return report

@@ -41,6 +41,7 @@ from tryon.sim.loop import run
 from tryon.sim.metrics import state_metrics
 from tryon.sim.runner import RunResult, ScenePicture
 from tryon.sim.scene import Scene
+from tryon.io.json_safe import dumps_json
 
 MODES = ("ray", "local")
 
@@ -405,7 +406,7 @@ def run_scene_time_parallel(
     if picture is not None:
         picture(fine, result.positions[-1], float(result.times[-1]), work / "last_frame.png")
     with atomic_write(work / "summary.json") as fh:
-        json.dump(result.summary, fh, indent=2)
+        fh.write(dumps_json(result.summary, indent=2))
     shutil.rmtree(work / "parallel", ignore_errors=True)
     publish_dir(work, out_dir, force=force)
     return result

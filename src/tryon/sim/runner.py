@@ -19,12 +19,14 @@ import numpy as np
 import torch
 
 from tryon.errors import InputFileError
+from tryon.io.npz import read_npz
 from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir, publish_dir
 from tryon.sim.integrator import ImplicitEulerSolver, StepStats
 from tryon.sim.loop import FrameRecorder, RunOutcome, StepRecord, run
 from tryon.sim.metrics import state_metrics
 from tryon.sim.model import ClothState
 from tryon.sim.scene import Scene
+from tryon.io.json_safe import dumps_json
 
 CHECKPOINT = "checkpoint.npz"
 
@@ -124,9 +126,8 @@ def _save_checkpoint(path: Path, scene: Scene, outcome: RunOutcome, frames: Fram
 def _load_checkpoint(path: Path, scene: Scene, solver: ImplicitEulerSolver) -> tuple[RunOutcome, list, list] | None:
     if not path.exists():
         return None
+    arrays = read_npz(path, "checkpoint")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
         fingerprint = str(arrays["fingerprint"])
         progress = json.loads(str(arrays["progress"]))
         x, v, frames = arrays["x"], arrays["v"], arrays["frames"]
@@ -170,7 +171,7 @@ def run_scene(scene: Scene, out_dir: str | Path, progress: bool = True, resume: 
     if picture is not None:
         picture(scene, result.positions[-1], float(result.times[-1]), work / "last_frame.png")
     with atomic_write(work / "summary.json") as fh:
-        json.dump(result.summary, fh, indent=2)
+        fh.write(dumps_json(result.summary, indent=2))
     (work / CHECKPOINT).unlink(missing_ok=True)
     publish_dir(work, out_dir, force=force)
     return result

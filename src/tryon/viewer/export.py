@@ -21,6 +21,7 @@ import torch
 
 from tryon.errors import InputFileError
 from tryon.io.atomic import atomic_output_dir, atomic_write
+from tryon.io.json_safe import dumps_json
 
 STATIC_FILES = ("index.html", "viewer.js", "three-bundle.min.js", "LICENSE-three.txt")
 SKIN = (0.80, 0.68, 0.60)
@@ -117,7 +118,7 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
             with resources.as_file(resources.files("tryon.viewer").joinpath(f"static/{name}")) as src:
                 shutil.copyfile(src, tmp / name)
         with atomic_write(tmp / "scene.json") as fh:
-            json.dump(meta, fh)
+            fh.write(dumps_json(meta))
         with atomic_write(tmp / "scene.bin", "wb") as fh:
             for _, a in arrays:
                 fh.write(np.ascontiguousarray(a).astype(a.dtype.newbyteorder("<")).tobytes())
