@@ -225,6 +225,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         run_parallel_bench(args.json, quick=args.quick, workers=args.workers)
         return 0
+    if args.what == "drape" and args.matrix:
+        from tryon.bench.drape_matrix import run_drape_matrix
+
+        run_drape_matrix(args.json, quick=args.quick)
+        return 0
     if args.what == "drape":
         from tryon.bench.drape import run_drape_bench
 
@@ -340,6 +345,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
+    b.add_argument("--matrix", action="store_true",
+                   help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)
 
     from tryon.cli.inverse import add_commands as add_inverse_commands
