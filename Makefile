@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 export ANNY_CACHE_DIR ?= $(CURDIR)/.cache/anny
 export TRYON_CACHE_DIR ?= $(CURDIR)/.cache/tryon
 
-.PHONY: demo test bench clean
+.PHONY: demo test test-fast bench clean
 
 $(STAMP): pyproject.toml scripts/system-deps.sh
 	bash scripts/system-deps.sh
@@ -23,6 +23,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# the fast tier (under 2 minutes): no drapes, Anny fits, Ray sessions or long runs
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow and not anny and not ray"
 
 bench: $(STAMP)
 	$(BIN)/tryon bench sim --json out/bench_sim.json

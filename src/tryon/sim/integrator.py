@@ -18,6 +18,7 @@ record a differentiable step: `detect_contacts` (proximity at the start of the s
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -29,6 +30,7 @@ from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
 from tryon.sim.collision.topology import export_tree_cache, import_tree_cache
 from tryon.sim.collision.contacts import Contacts
+from tryon.sim.collision.scene import CollisionScene
 from tryon.sim.forces.bending import bending_forces
 from tryon.sim.forces.contact import (
     FRICTION_SLIP_SPEED,
@@ -93,9 +95,9 @@ class ImplicitEulerSolver:
         self.pinned_mask = np.zeros(model.num_vertices, dtype=bool)
         self.pinned_mask[model.pinned.numpy()] = True
         self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
-        self._faces_np = faces
-        self._edges_np = model.edges.numpy()
         self._last_dv: np.ndarray | None = None
+        self.collisions = CollisionScene.of(faces, model.edges, self.mass, model.obstacles.faces, model.obstacles.edges,
+                                            model.collision.thickness, self.pinned_mask, model.collision.self_collision)
 
     # ------------------------------------------------------------------ public API
     def step(self, state: ClothState, dt: float, control: Control | None = None) -> tuple[ClothState, StepStats]:
@@ -112,6 +114,7 @@ class ImplicitEulerSolver:
         self.fabric = fabric
         self.mass = self.model.mass(fabric).detach().numpy().astype(np.float64)
         self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
+        self.collisions = dataclasses.replace(self.collisions, masses=self.mass)
 
     def checkpoint_arrays(self) -> dict[str, np.ndarray]:
         """What, besides the cloth state, decides the next step's result: the linear
@@ -192,13 +195,9 @@ class ImplicitEulerSolver:
         """Proximity contacts (cloth-cloth and cloth-obstacle within the thickness) at the
         start of the step, against the obstacles' end-of-step positions; None when
         collisions are off."""
-        m = self.model
-        if not (self.options.collisions and m.collision.enabled):
+        if not (self.options.collisions and self.model.collision.enabled):
             return None
-        return col.find_proximities(
-            x, self._faces_np, self._edges_np, ob1, m.obstacles.faces, m.obstacles.edges,
-            m.collision.thickness, self_collision=m.collision.self_collision,
-        )
+        return self.collisions.proximities(x, ob1)
 
     def assemble(self, state: ClothState, dt: float, control: Control | None, contacts: Contacts | None,
                  ob0: np.ndarray, ob1: np.ndarray) -> "StepSystem":
@@ -210,7 +209,8 @@ class ImplicitEulerSolver:
         H, D, f = self._elastic_and_air(state, control)
         active = None
         if contacts is not None and len(contacts):
-            active = self._add_contact_terms(contacts, x, v, ob1, H, f)
+            friction = None if control is None else control.friction
+            active = self._add_contact_terms(contacts, x, v, ob1, H, f, friction)
             if active is not None:
                 self._add_friction_terms(active, v, ob0, ob1, dt, D, f)
         A = dt * dt * H + dt * D
@@ -239,7 +239,6 @@ class ImplicitEulerSolver:
         """Intersection-free positions for the move x0 -> x1 (CCD and impact zones; with
         `allow_fallback`, rigid impact zones when those fail): (positions, ok, report).
         `trace`, when given, records the impact-zone projections (for `tryon.diff`)."""
-        m = self.model
         x_fixed, report = self.collision_response(x0, x1, ob0, ob1, trace=trace)
         if report.success and np.all(np.isfinite(x_fixed)):
             return x_fixed, True, report
@@ -248,11 +247,8 @@ class ImplicitEulerSolver:
         report.fallback = True
         if trace is not None:
             trace.clear()
-        x_safe = col.rigid_impact_zone_fallback(
-            x0, x_fixed if np.all(np.isfinite(x_fixed)) else x1, self.mass, self._faces_np, self._edges_np,
-            ob0, ob1, m.obstacles.faces, m.obstacles.edges, m.collision.thickness,
-            pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
-        )
+        x_safe = col.rigid_impact_zone_fallback(self.collisions, x0, x_fixed if np.all(np.isfinite(x_fixed)) else x1,
+                                                ob0, ob1)
         return x_safe, True, report
 
     # ------------------------------------------------------------------ terms
@@ -272,7 +268,7 @@ class ImplicitEulerSolver:
                 x, v, m.faces, m.rest_area, torch.as_tensor(wind_v, dtype=x.dtype), m.wind.density, m.wind.drag
             )
         n = m.num_vertices
-        f = -_scatter_vertex_grad(g_mem.numpy(), self._faces_np, n) - _scatter_vertex_grad(g_bend.numpy(), m.hinges.numpy(), n)
+        f = -_scatter_vertex_grad(g_mem.numpy(), self.collisions.faces, n) - _scatter_vertex_grad(g_bend.numpy(), m.hinges.numpy(), n)
         f += f_wind.numpy()
         f += self.mass[:, None] * m.gravity.numpy()[None]
         if control is not None and control.external_force is not None:
@@ -281,8 +277,9 @@ class ImplicitEulerSolver:
         scatter_element_blocks(H, self.pattern.element_maps[1], np.ascontiguousarray(h_bend.numpy()), 4)
         if d_wind is not None:
             scatter_element_blocks(D, self.pattern.element_maps[0], np.ascontiguousarray(d_wind.numpy()), 3)
-        if len(self._stitches) and m.stitch_stiffness > 0:
-            self._add_stitches(x.numpy(), f, H)
+        stitch_k = m.stitch_stiffness if control is None or control.stitch_stiffness is None else control.stitch_stiffness
+        if len(self._stitches) and stitch_k > 0:
+            self._add_stitches(x.numpy(), f, H, stitch_k)
         if m.damping > 0:
             D += m.damping * H
         if m.air_damping > 0:
@@ -290,9 +287,8 @@ class ImplicitEulerSolver:
             f -= m.air_damping * self.mass[:, None] * v.numpy()
         return H, D, f
 
-    def _add_stitches(self, x: np.ndarray, f: np.ndarray, H: np.ndarray) -> None:
+    def _add_stitches(self, x: np.ndarray, f: np.ndarray, H: np.ndarray, k: float) -> None:
         """Zero-length springs E = k/2 |x_i - x_j|^2 between stitched vertices (sewing)."""
-        k = self.model.stitch_stiffness
         i, j = self._stitches[:, 0], self._stitches[:, 1]
         pull = k * (x[i] - x[j])
         np.add.at(f, i, -pull)
@@ -304,13 +300,11 @@ class ImplicitEulerSolver:
     def obstacle_contact_forces(self, x: np.ndarray, t: float) -> np.ndarray:
         """Repulsion force [N,3] the obstacles apply to each cloth vertex at positions x
         (the penalty of step 3 at rest; divide by vertex area for contact pressure)."""
-        m = self.model
-        ob = m.obstacles.vertices_at(t)
+        ob = self.model.obstacles.vertices_at(t)
         f = np.zeros_like(x)
         if len(ob) == 0:
             return f
-        c = col.find_proximities(x, self._faces_np, self._edges_np, ob, m.obstacles.faces, m.obstacles.edges,
-                                 m.collision.thickness, self_collision=False)
+        c = self.collisions.proximities(x, ob, self_collision=False)
         if len(c):
             self._add_contact_terms(c, x, np.zeros_like(x), ob, self.pattern.zeros(), f)
         return f
@@ -319,7 +313,7 @@ class ImplicitEulerSolver:
         """k of the penalty: the collision stiffness times the mean vertex area."""
         return self.model.collision.stiffness * float(self.model.vertex_area.mean())
 
-    def _add_contact_terms(self, c: Contacts, x, v, ob1, H, f) -> "ActiveContacts | None":
+    def _add_contact_terms(self, c: Contacts, x, v, ob1, H, f, friction: float | None = None) -> "ActiveContacts | None":
         """The penalty potential (`tryon.sim.forces.contact`) of every contact whose gap is
         below the thickness, into f and (lumped) H. Returns those active contacts with
         their normal forces, for friction."""
@@ -346,7 +340,7 @@ class ImplicitEulerSolver:
         add_diagonal_blocks(H, self.pattern.diag_block, verts, np.ascontiguousarray(blocks[act.is_cloth]))
         act.fn = fn
         act.stiff = stiff
-        act.mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction)
+        act.mu = np.where(act.is_cloth.all(1), cs.self_friction, cs.friction if friction is None else friction)
         return act
 
     def _add_friction_terms(self, act: "ActiveContacts", v, ob0, ob1, dt, D, f) -> None:
@@ -376,12 +370,7 @@ class ImplicitEulerSolver:
                            trace: list | None = None):
         """`resolve_collisions` of the move x0 -> x1 (obstacles ob0 -> ob1) with this model's
         masses, topology, pins and thickness: (positions, report)."""
-        m = self.model
-        return col.resolve_collisions(
-            x0, x1, self.mass, self._faces_np, self._edges_np, ob0, ob1, m.obstacles.faces, m.obstacles.edges,
-            m.collision.thickness, pinned_mask=self.pinned_mask, self_collision=m.collision.self_collision,
-            trace=trace,
-        )
+        return col.resolve_collisions(self.collisions, x0, x1, ob0, ob1, trace=trace)
 
 
 @dataclass

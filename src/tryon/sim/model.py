@@ -62,10 +62,15 @@ class ClothState:
 
 @dataclass
 class Control:
-    """Per-step inputs: extra forces on vertices (N) and an optional wind override."""
+    """Per-step inputs: extra forces on vertices (N), a wind override (m/s), and overrides
+    of settings that a process ramps during a run: the stitches' stiffness (N/m; sewing
+    pulls them tighter step by step) and the cloth-obstacle friction coefficient (a drape
+    lets the cloth slide while the body morphs). None keeps the model's value."""
 
     external_force: torch.Tensor | None = None
     wind_velocity: torch.Tensor | None = None
+    stitch_stiffness: float | None = None
+    friction: float | None = None
 
 
 class ClothModel:

@@ -33,10 +33,12 @@ from tryon.sim.collision.intersections import (
 )
 from tryon.sim.collision.proximity import find_proximities
 from tryon.sim.collision.qp import QPResult, solve_projection
+from tryon.sim.collision.scene import CollisionScene
 
 __all__ = [
     "BVH",
     "CollisionReport",
+    "CollisionScene",
     "Contacts",
     "EE_OBSTACLE",
     "EE_SELF",

@@ -32,6 +32,7 @@ from tryon.sim.collision.ccd import find_impacts
 from tryon.sim.collision.contacts import Contacts, as_points
 from tryon.sim.collision.proximity import prepare_inputs
 from tryon.sim.collision.qp import solve_projection
+from tryon.sim.collision.scene import CollisionScene
 
 GAP_FRACTION = 0.1  # ARCSim: projection thickness 1e-4 m vs repulsion thickness 1e-3 m
 QP_TOL = 1e-10  # metres of constraint violation
@@ -86,8 +87,11 @@ def _coupling_graph(idx: np.ndarray, n_vertices: int, ob_component: np.ndarray |
     return graph, involved
 
 
-def _prepare_response(x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned_mask):
-    x0, faces, edges, ob0, ob_faces, ob_edges = prepare_inputs(x0, faces, edges, ob0, ob_faces, ob_edges)
+def _prepare_response(scene: CollisionScene, x0, x1, ob0, ob1):
+    masses, pinned_mask = scene.masses, scene.pinned
+    ob0 = np.zeros((0, 3)) if ob0 is None else ob0
+    x0, faces, edges, ob0, ob_faces, ob_edges = prepare_inputs(x0, scene.faces, scene.edges, ob0, scene.ob_faces,
+                                                                scene.ob_edges)
     x1 = as_points(x1, "cloth end positions")
     ob1 = as_points(ob1 if ob1 is not None else np.zeros((0, 3)), "obstacle end positions")
     if x1.shape != x0.shape or ob1.shape != ob0.shape:
@@ -104,18 +108,11 @@ def _prepare_response(x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges
 
 
 def resolve_collisions(
+    scene: CollisionScene,
     x0: Any,
     x1: Any,
-    masses: Any,
-    faces: Any,
-    edges: Any,
-    ob0: Any,
-    ob1: Any,
-    ob_faces: Any,
-    ob_edges: Any,
-    thickness: float,
-    pinned_mask: Any = None,
-    self_collision: bool = True,
+    ob0: Any = None,
+    ob1: Any = None,
     max_iterations: int = 30,
     gap_fraction: float = GAP_FRACTION,
     tol: float = QP_TOL,
@@ -130,9 +127,8 @@ def resolve_collisions(
     More than `max_impacts` impacts at once (default: twice the vertex count, at least
     2000) means the candidate positions are not a collision problem but a failed step:
     the response gives up at once rather than projecting a whole garment."""
-    x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned = _prepare_response(
-        x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned_mask
-    )
+    x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned = _prepare_response(scene, x0, x1, ob0, ob1)
+    thickness, self_collision = scene.thickness, scene.self_collision
     target = float(gap_fraction * thickness)
     report = CollisionReport(target_gap=target)
     if not np.all(np.isfinite(x1)):
@@ -282,21 +278,8 @@ def _rigid_zone_positions(x0, x1, masses, pinned, labels, involved, ob0, ob1, ob
     return x
 
 
-def rigid_impact_zone_fallback(
-    x0: Any,
-    x1: Any,
-    masses: Any,
-    faces: Any,
-    edges: Any,
-    ob0: Any,
-    ob1: Any,
-    ob_faces: Any,
-    ob_edges: Any,
-    thickness: float,
-    pinned_mask: Any = None,
-    self_collision: bool = True,
-    max_iterations: int = 100,
-) -> np.ndarray:
+def rigid_impact_zone_fallback(scene: CollisionScene, x0: Any, x1: Any, ob0: Any = None, ob1: Any = None,
+                               max_iterations: int = 100) -> np.ndarray:
     """Rigid impact zones (Bridson, Fedkiw & Anderson 2002, sec. 7.4), the fail-safe.
 
     Vertices of colliding primitives are merged into zones; a zone that touches an
@@ -306,9 +289,8 @@ def rigid_impact_zone_fallback(
     invertible affine maps, so a zone never intersects itself or the obstacle it rides
     with; zones keep merging until no impact is left. If x0 is intersection-free and
     every zone's kinematic partners move rigidly together, so is the result."""
-    x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned = _prepare_response(
-        x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned_mask
-    )
+    x0, x1, masses, faces, edges, ob0, ob1, ob_faces, ob_edges, pinned = _prepare_response(scene, x0, x1, ob0, ob1)
+    thickness, self_collision = scene.thickness, scene.self_collision
     n = len(x0)
     x1 = np.where(np.isfinite(x1), x1, x0)
     n_comp, ob_comp = obstacle_components(len(ob0), ob_faces)

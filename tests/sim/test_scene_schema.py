@@ -18,7 +18,7 @@ from tryon.limits import ALLOW_LARGE_ENV, LIMITS, check_limit, large_allowed
 from tryon.sim.scene import EXAMPLES, example_scene, example_spec, load_scene, parse_scene
 from tryon.sim.scene_schema import safe_name, scene_format_markdown, validate_scene_spec
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "SCENE_FORMAT.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "SCENE_FORMAT.md"
 
 
 def _tiny(**top) -> dict:

@@ -72,7 +72,7 @@ def sandbox(tmp_path, monkeypatch, warm_solver):
     outside it, and nothing but what the test itself wrote inside it."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("TRYON_ALLOW_LARGE", raising=False)
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     before = _listing(repo)
     yield tmp_path
     assert _listing(repo) == before, "a fuzz case wrote files into the repository"

@@ -398,11 +398,11 @@ def test_cloth_falling_fast_through_a_plane_ends_above_it():
     assert x1[:, 2].max() < 0  # tunnelled right through: only CCD can see it
     assert len(col.find_impacts(x0, x1, f, e, gx, gx, gf, ge, H)) >= len(x0)
     m = np.full(len(x0), 1e-3)
-    res, rep = col.resolve_collisions(x0, x1, m, f, e, gx, gx, gf, ge, H)
+    res, rep = col.resolve_collisions(col.CollisionScene.of(f, e, m, gf, ge, H), x0, x1, gx, gx)
     _check_resolved(x0, res, f, e, gx, gx, gf, ge, rep, 0.1 * H)
     assert res[:, 2].min() >= 0.1 * H - 1e-9
     assert rep.impacts_found > 0 and rep.zones >= 1
-    safe = col.rigid_impact_zone_fallback(x0, x1, m, f, e, gx, gx, gf, ge, H)
+    safe = col.rigid_impact_zone_fallback(col.CollisionScene.of(f, e, m, gf, ge, H), x0, x1, gx, gx)
     assert col.count_intersections(safe, f, e, gx, gf, ge) == (0, 0)
     assert len(col.find_impacts(x0, safe, f, e, gx, gx, gf, ge, H)) == 0
 
@@ -425,7 +425,7 @@ def test_vertex_driven_through_another_layer_is_stopped_and_pins_hold():
     x0, x1, f, e, pinned = _squeezed_layers()
     assert col.count_intersections(x1, f, e, *no_obstacle())[0] > 0
     masses = torch.full((len(x0),), 2e-4, dtype=torch.float64)
-    res, rep = col.resolve_collisions(torch.from_numpy(x0), x1, masses, f, e, *no_obstacle()[:1], *no_obstacle(), H, pinned_mask=pinned)
+    res, rep = col.resolve_collisions(col.CollisionScene.of(f, e, masses, thickness=H, pinned_mask=pinned), torch.from_numpy(x0), x1)
     _check_resolved(x0, res, f, e, *no_obstacle()[:1], *no_obstacle(), rep, 0.1 * H)
     assert np.array_equal(res[pinned], x1[pinned])
     # KKT of the projection: z - x1 = M^-1 A^T lambda, lambda >= 0, complementary slackness
@@ -438,7 +438,7 @@ def test_vertex_driven_through_another_layer_is_stopped_and_pins_hold():
     assert np.abs(res - x1 - disp / 2e-4).max() < 1e-9
     slack = c.gaps(res) - rep.target_gap
     assert np.abs(lam * slack).max() < 1e-9 * max(lam.max(), 1.0)
-    safe = col.rigid_impact_zone_fallback(x0, x1, masses, f, e, *no_obstacle()[:1], *no_obstacle(), H, pinned_mask=pinned)
+    safe = col.rigid_impact_zone_fallback(col.CollisionScene.of(f, e, masses, thickness=H, pinned_mask=pinned), x0, x1)
     assert col.count_intersections(safe, f, e, *no_obstacle()) == (0, 0)
     assert len(col.find_impacts(x0, safe, f, e, *no_obstacle()[:1], *no_obstacle(), H)) == 0
     assert np.array_equal(safe[pinned], x1[pinned])
@@ -449,11 +449,11 @@ def test_moving_obstacle_pushes_cloth():
     ob0, obf, obe = ball([0.0, 0.0, -0.21], 0.2, subdivisions=2)
     ob1 = ob0 + [0.0, 0.0, 0.05]  # rises 5 cm through the resting cloth
     m = np.full(len(x0), 1e-3)
-    res, rep = col.resolve_collisions(x0, x0.copy(), m, f, e, ob0, ob1, obf, obe, H)
+    res, rep = col.resolve_collisions(col.CollisionScene.of(f, e, m, obf, obe, H), x0, x0.copy(), ob0, ob1)
     _check_resolved(x0, res, f, e, ob0, ob1, obf, obe, rep, 0.1 * H)
     assert col.signed_obstacle_distance(res, ob1, obf).min() > 0
     assert res[:, 2].max() > 0.03
-    safe = col.rigid_impact_zone_fallback(x0, x0.copy(), m, f, e, ob0, ob1, obf, obe, H)
+    safe = col.rigid_impact_zone_fallback(col.CollisionScene.of(f, e, m, obf, obe, H), x0, x0.copy(), ob0, ob1)
     assert col.count_intersections(safe, f, e, ob1, obf, obe) == (0, 0)
     assert len(col.find_impacts(x0, safe, f, e, ob0, ob1, obf, obe, H)) == 0
 
@@ -463,7 +463,7 @@ def test_sharp_obstacle_tip_is_caught_by_vertex_face_contacts():
     tip = np.array([[0.03, 0.02, -0.02], [-0.1, -0.1, -0.2], [0.1, -0.1, -0.2], [0.0, 0.12, -0.2]])
     tf = np.array([[0, 2, 1], [0, 3, 2], [0, 1, 3], [1, 2, 3]])
     tip1 = tip + [0, 0, 0.05]
-    res, rep = col.resolve_collisions(x0, x0.copy(), np.full(len(x0), 1e-3), f, e, tip, tip1, tf, edges_of(tf), H)
+    res, rep = col.resolve_collisions(col.CollisionScene.of(f, e, np.full(len(x0), 1e-3), tf, edges_of(tf), H), x0, x0.copy(), tip, tip1)
     _check_resolved(x0, res, f, e, tip, tip1, tf, edges_of(tf), rep, 0.1 * H)
     assert col.FV_OBSTACLE in set(rep.constraints.kind.tolist())
 
@@ -475,4 +475,4 @@ def test_bad_input_raises_mesh_error():
     with pytest.raises(MeshError, match="positions"):
         col.find_proximities(x[:, :2], f, e, *no_obstacle(), H)
     with pytest.raises(MeshError, match="masses"):
-        col.resolve_collisions(x, x, np.zeros(len(x)), f, e, *no_obstacle()[:1], *no_obstacle(), H)
+        col.resolve_collisions(col.CollisionScene.of(f, e, np.zeros(len(x)), thickness=H), x, x)

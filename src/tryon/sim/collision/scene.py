@@ -1,0 +1,58 @@
+"""The collision scene: what collision handling needs of a cloth and its obstacles besides
+their positions, travelling as one object through the Python side of `tryon.sim.collision`
+(the numba kernels take the arrays flat)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tryon.sim.collision.contacts import check_thickness
+
+
+@dataclass(frozen=True)
+class CollisionScene:
+    """Cloth topology (faces [F,3], edges [E,2]), vertex masses [N] (kg) and pinned mask
+    [N], the obstacles' merged topology (ob_faces, ob_edges), the contact thickness (m) and
+    whether the cloth collides with itself."""
+
+    faces: np.ndarray
+    edges: np.ndarray
+    masses: np.ndarray
+    pinned: np.ndarray
+    ob_faces: np.ndarray
+    ob_edges: np.ndarray
+    thickness: float
+    self_collision: bool = True
+
+    @classmethod
+    def of(cls, faces: Any, edges: Any, masses: Any, ob_faces: Any = None, ob_edges: Any = None,
+           thickness: float = 0.005, pinned_mask: Any = None, self_collision: bool = True) -> "CollisionScene":
+        """A scene from numpy or torch arrays (no obstacles when ob_faces is None)."""
+        def arr(a: Any, dtype, shape: tuple) -> np.ndarray:
+            if a is None:
+                return np.zeros(shape, dtype)
+            if hasattr(a, "detach"):
+                a = a.detach().cpu().numpy()
+            return np.ascontiguousarray(np.asarray(a, dtype))
+
+        masses = arr(masses, np.float64, (0,))
+        pinned = np.zeros(len(masses), bool) if pinned_mask is None else arr(pinned_mask, bool, (0,)).reshape(-1)
+        return cls(arr(faces, np.int64, (0, 3)), arr(edges, np.int64, (0, 2)), masses, pinned,
+                   arr(ob_faces, np.int64, (0, 3)), arr(ob_edges, np.int64, (0, 2)), check_thickness(thickness),
+                   bool(self_collision))
+
+    def proximities(self, x: np.ndarray, ob: np.ndarray, self_collision: bool | None = None):
+        """Contacts within the thickness at positions x, obstacles at ob (`find_proximities`)."""
+        from tryon.sim.collision.proximity import find_proximities
+
+        return find_proximities(x, self.faces, self.edges, ob, self.ob_faces, self.ob_edges, self.thickness,
+                                self_collision=self.self_collision if self_collision is None else self_collision)
+
+    def intersections(self, x: np.ndarray, ob: np.ndarray) -> tuple[int, int]:
+        """(self, obstacle) intersecting edge-triangle pairs (`count_intersections`)."""
+        from tryon.sim.collision.intersections import count_intersections
+
+        return count_intersections(x, self.faces, self.edges, ob, self.ob_faces, self.ob_edges, self.self_collision)
