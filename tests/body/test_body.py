@@ -14,6 +14,8 @@ from tryon.body.motion import BUILTIN_MOTIONS, BodyMotion, load_motion, morph_ke
 from tryon.body.pose import named_pose, posed_body, posed_heads, bone_transforms
 from tryon.errors import InputFileError, TryonError
 
+pytestmark = [pytest.mark.anny]
+
 
 @pytest.fixture(scope="module")
 def neutral_shape():

@@ -60,6 +60,7 @@ def test_fabrics_lists_presets(capsys):
     assert len(rows) == 12
 
 
+@pytest.mark.slow
 def test_bench_sim_quick(tmp_path):
     out = tmp_path / "bench.json"
     rc = subprocess.run([sys.executable, "-m", "tryon.cli", "bench", "sim", "--quick", "--grids", "16", "--threads", "1", "--json", str(out)],

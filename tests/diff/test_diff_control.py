@@ -80,6 +80,7 @@ def test_policy_outputs_forces_only_during_the_force_time(task):
     assert float(policy(task.force_steps, x, v).abs().max()) == 0.0
 
 
+@pytest.mark.slow
 def test_control_command_writes_report_and_preview(tmp_path):
     out = tmp_path / "basket"
     assert main(["control", "--example", "basket", "--out", str(out), "--iterations", "1", "--resolution", "3",

@@ -48,6 +48,7 @@ def test_bad_observed_files_are_explained(tmp_path, observed):
         fit_fabric(load_observed(observed), method="newton")
 
 
+@pytest.mark.slow
 def test_gradient_fit_recovers_density_with_fewer_simulations(observed):
     obs = load_observed(observed)
     truth = load_fabric("11oz-black-denim")

@@ -14,6 +14,8 @@ from tryon.parallel.segment import FAULT_ENV  # noqa: E402
 from tryon.sim.runner import simulate  # noqa: E402
 from tryon.sim.scene import example_scene  # noqa: E402
 
+pytestmark = [pytest.mark.ray, pytest.mark.slow]
+
 
 @pytest.fixture(scope="module")
 def fault_marker(tmp_path_factory):

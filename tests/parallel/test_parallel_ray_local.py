@@ -5,6 +5,10 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
+pytestmark = [pytest.mark.ray, pytest.mark.slow]
+
 SCRIPT = textwrap.dedent("""
     import os, subprocess, sys
     os.environ["RAY_AUTH_MODE"] = "disabled"   # what a user's shell might say

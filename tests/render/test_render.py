@@ -29,7 +29,7 @@ from tryon.render.colormap import colormap_lut
 SIZE = 160
 WHITE = (1.0, 1.0, 1.0)
 
-needs_gl = pytest.mark.skipif(not opengl_available(), reason="no offscreen OpenGL context on this machine")
+needs_gl = [pytest.mark.gl, pytest.mark.skipif(not opengl_available(), reason="no offscreen OpenGL context on this machine")]
 BACKENDS = [pytest.param("gl", marks=needs_gl), "numpy"]
 
 
@@ -92,7 +92,8 @@ def test_face_colors_left_red_right_blue(sphere: trimesh.Trimesh, backend: str) 
     assert blue[:, h:].sum() > 10 * blue[:, :h].sum()
 
 
-@needs_gl
+@pytest.mark.gl
+@pytest.mark.skipif(not opengl_available(), reason="no offscreen OpenGL context on this machine")
 def test_numpy_fallback_matches_opengl(sphere: trimesh.Trimesh) -> None:
     body = trimesh.creation.capsule(height=1.0, radius=0.25)
     meshes = [
@@ -308,7 +309,8 @@ def test_missing_opengl_falls_back_with_one_warning(
         render_meshes([mesh], 64, 64, backend="gl")
 
 
-@needs_gl
+@pytest.mark.gl
+@pytest.mark.skipif(not opengl_available(), reason="no offscreen OpenGL context on this machine")
 def test_rendering_from_another_thread(sphere: trimesh.Trimesh) -> None:
     mesh = RenderMesh(sphere.vertices, sphere.faces)
     here = render_meshes([mesh], 64, 64, backend="gl")

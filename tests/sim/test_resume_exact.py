@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.slow]
+
 ARGS = ["simulate", "--example", "sphere-drop", "--resolution", "10", "--duration", "3.0", "--quiet", "--no-obj"]
 
 

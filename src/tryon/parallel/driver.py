@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from tryon.errors import TryonError
-from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir, publish_dir
+from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir
 from tryon.parallel.coarse import CoarseRun
 from tryon.parallel.executors import LocalExecutor, Progress, RayExecutor
 from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
@@ -39,9 +39,8 @@ from tryon.parallel.segment import SegmentResult, SegmentSpec
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import run
 from tryon.sim.metrics import state_metrics
-from tryon.sim.runner import RunResult, ScenePicture
+from tryon.sim.runner import RunResult, ScenePicture, publish_run
 from tryon.sim.scene import Scene
-from tryon.io.json_safe import dumps_json
 
 MODES = ("ray", "local")
 
@@ -391,22 +390,11 @@ def run_scene_time_parallel(
     (frames.npz, obj/, summary.json, last_frame.png) for the fine cloth, assembled under
     `<out>.partial` (which holds the checkpoint) and renamed into place when complete.
     `options`, when given, overrides workers / partition / ray_address / mode."""
-    from tryon.io.frames import save_frames_npz, write_obj_sequence
-
     opts = options or ParallelOptions(workers=workers, partition=partition, ray_address=ray_address, mode=mode)
     out_dir = check_output_dir(out_dir, force=force)
     work = claim_work_dir(out_dir.with_name(out_dir.name + ".partial"), resume=resume, force=force)
     result = simulate_time_parallel(scene, opts, progress=progress, checkpoint_dir=work, resume=resume,
                                     on_progress=on_progress)
-    fine = result.hierarchy.fine
-    faces, uv = fine.model.faces.numpy(), fine.model.mesh.uv.numpy()
-    save_frames_npz(work / "frames.npz", result.positions, faces, uv=uv, times=result.times)
-    if write_objs:
-        write_obj_sequence(work / "obj", result.positions, faces, uv=uv)
-    if picture is not None:
-        picture(fine, result.positions[-1], float(result.times[-1]), work / "last_frame.png")
-    with atomic_write(work / "summary.json") as fh:
-        fh.write(dumps_json(result.summary, indent=2))
     shutil.rmtree(work / "parallel", ignore_errors=True)
-    publish_dir(work, out_dir, force=force)
+    publish_run(work, out_dir, result.hierarchy.fine, result, write_objs, picture, force)
     return result

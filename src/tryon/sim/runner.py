@@ -158,11 +158,20 @@ def run_scene(scene: Scene, out_dir: str | Path, progress: bool = True, resume: 
     into out_dir. The folder is assembled in `<out_dir>.partial` (which keeps the checkpoint
     until the run ends) and renamed into place; an existing out_dir is replaced only when
     tryon wrote it (or with `force`, see `tryon.io.atomic.check_output_dir`)."""
-    from tryon.io.frames import save_frames_npz, write_obj_sequence
-
     out_dir = check_output_dir(out_dir, force=force)
     work = claim_work_dir(out_dir.with_name(out_dir.name + ".partial"), resume=resume, force=force)
     result = simulate(scene, progress=progress, checkpoint_dir=work, resume=resume)
+    publish_run(work, out_dir, scene, result, write_objs, picture, force)
+    return result
+
+
+def publish_run(work: Path, out_dir: Path, scene: Scene, result: RunResult, write_objs: bool = True,
+                picture: ScenePicture | None = None, force: bool = False) -> None:
+    """Write a run's outputs (frames.npz, obj/, last_frame.png, summary.json) into its
+    working folder, drop the checkpoints and rename the folder to out_dir: the one writer
+    of simulation folders (serial and time-parallel)."""
+    from tryon.io.frames import save_frames_npz, write_obj_sequence
+
     m = scene.model
     faces, uv = m.faces.numpy(), m.mesh.uv.numpy()
     save_frames_npz(work / "frames.npz", result.positions, faces, uv=uv, times=result.times)
@@ -174,4 +183,3 @@ def run_scene(scene: Scene, out_dir: str | Path, progress: bool = True, resume: 
         fh.write(dumps_json(result.summary, indent=2))
     (work / CHECKPOINT).unlink(missing_ok=True)
     publish_dir(work, out_dir, force=force)
-    return result
