@@ -126,3 +126,42 @@ def test_simulate_replaces_its_own_output(tmp_path):
     assert main(args) == 0 and is_owned(out)
     assert main(args) == 0 and (out / "summary.json").exists()
     assert not (tmp_path / "run.partial").exists()
+
+
+def test_a_folder_holding_the_home_folder_is_refused_even_with_force(tmp_path, monkeypatch):
+    home = tmp_path / "users" / "alice"
+    home.mkdir(parents=True)
+    (home / "thesis.tex").write_text("years of work")
+    monkeypatch.setenv("HOME", str(home))
+    with pytest.raises(OutputFolderError, match="contains your home folder"):
+        check_output_dir(tmp_path / "users", force=True)
+    assert (home / "thesis.tex").exists()
+
+
+def test_dot_dot_is_folded_before_the_check(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _users_folder(tmp_path / "x")
+    with pytest.raises(OutputFolderError, match="not written by tryon"):
+        check_output_dir("nope/../x")  # what the run would write is x: refused before any work
+    assert not (tmp_path / "nope").exists()
+    assert check_output_dir("a/b/../c") == Path("a/c")
+
+
+def test_two_runs_never_share_a_working_folder(tmp_path):
+    work = claim_work_dir(tmp_path / "run.partial")
+    script = f"from tryon.io.atomic import claim_work_dir; claim_work_dir({str(work)!r})"
+    import subprocess
+    import sys
+
+    other = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert other.returncode != 0 and "another tryon run is writing" in other.stderr
+    assert work.exists()
+
+
+def test_a_linked_marker_does_not_make_a_folder_owned(tmp_path):
+    mine = _users_folder(tmp_path / "mine")
+    (tmp_path / "fake.json").write_text('{"written_by": "tryon"}')
+    (mine / OWNER_MARKER).symlink_to(tmp_path / "fake.json")
+    assert not is_owned(mine)
+    with pytest.raises(OutputFolderError):
+        check_output_dir(mine)

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tryon.io.atomic import atomic_write, check_output_dir
+from tryon.io.atomic import atomic_write, claim_work_dir
 from tryon.io.json_safe import dumps_json
 
 TARGET_S = 60.0
@@ -109,8 +109,7 @@ def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: fl
     picture grid (`<json stem>.png`); cell folders in `<json stem>-cells/`."""
     json_path = Path(json_path)
     edge = edge_length or (0.03 if quick else 0.012)
-    cell_root = check_output_dir(json_path.with_name(json_path.stem + "-cells"))
-    cell_root.mkdir(parents=True, exist_ok=True)
+    cell_root = claim_work_dir(json_path.with_name(json_path.stem + "-cells"), resume=True)
     girths: dict[str, dict] = {}
     records = []
     print(f"{'garment':10s} {'size':4s} {'fabric':17s} {'body':14s} {'wall s':>7s} {'steps':>5s} {'settled':>7s} "

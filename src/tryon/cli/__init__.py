@@ -23,7 +23,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.example and args.scene:
         raise TryonError("give either a SCENE.yaml or --example NAME, not both")
     _check_positive(args, "dt", "duration")
-    if args.out is not None:
+    if args.out is not None and not args.dump:
         check_output_dir(args.out, force=args.force)
     if args.example:
         if args.dump:
@@ -142,7 +142,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
     from tryon.viewer import screenshot_viewer, start_server, write_viewer
 
-    out = write_viewer(args.drape_dir, animation=args.animation)
+    out = write_viewer(args.drape_dir, animation=args.animation, force=args.force)
     print(f"viewer written to {out}")
     if args.screenshot:
         status = screenshot_viewer(out, args.screenshot, mode=args.mode)
@@ -325,6 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--no-serve", action="store_true", help="only write DRAPE_DIR/viewer")
     v.add_argument("--screenshot", help="save a picture of the page (headless Chromium) to this PNG instead of serving")
     v.add_argument("--mode", choices=["strain", "pressure", "plain"], default="strain", help="colouring for --screenshot")
+    v.add_argument("--force", action="store_true", help="replace DRAPE_DIR/viewer even if tryon did not write it")
     v.set_defaults(func=_cmd_view)
 
     r = sub.add_parser("body-range", help="the BMI range the Anny body reaches without distortion")

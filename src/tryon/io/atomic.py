@@ -14,6 +14,7 @@ the working directory and its parents are never replaced.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
@@ -120,8 +121,13 @@ def _protected(path: Path) -> str | None:
     resolved = path.resolve()
     if resolved == Path(resolved.anchor):
         return "it is the root of the file system"
-    if resolved == Path.home().resolve():
+    if resolved.parent == Path(resolved.anchor):
+        return "it is a top-level folder of the file system"
+    home = Path.home().resolve()
+    if resolved == home:
         return "it is your home folder"
+    if resolved in home.parents:
+        return "it contains your home folder"
     cwd = Path.cwd().resolve()
     if resolved == cwd:
         return "it is the working directory"
@@ -142,26 +148,46 @@ def _writable_ancestor(path: Path) -> None:
 
 
 def is_owned(path: str | os.PathLike[str]) -> bool:
-    """True when `path` is a folder written by tryon (it carries the owner marker)."""
-    return (Path(path) / OWNER_MARKER).is_file()
+    """True when `path` is a folder written by tryon: it holds the owner marker as a plain
+    file (not a link) that says so."""
+    marker = Path(path) / OWNER_MARKER
+    try:
+        if marker.is_symlink() or not marker.is_file():
+            return False
+        return json.loads(marker.read_text()).get("written_by") == "tryon"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _normalised(path: str | os.PathLike[str]) -> Path:
+    """The output path with `.` and `..` folded away (so that what is checked before the run
+    is what the run writes), refusing names that end in `..`."""
+    text = os.fspath(path)
+    if text.strip() == "":
+        raise OutputFolderError("the output folder name is empty; give --out DIR")
+    return Path(os.path.normpath(text))
 
 
 def check_output_dir(path: str | os.PathLike[str], force: bool = False) -> Path:
     """Check, before any work, that `path` may become an output folder: it does not exist,
     is empty, or was written by tryon (``force`` allows any other folder, never a
-    protected one). Raises `OutputFolderError` naming the problem and the way out."""
-    target = Path(path)
-    if str(path).strip() == "":
-        raise OutputFolderError("the output folder name is empty; give --out DIR")
+    protected one). Returns the normalised path; raises `OutputFolderError` naming the
+    problem and the way out."""
+    target = _normalised(path)
     why = _protected(target)
-    if why is not None:
+    if why is not None or target.name in ("", ".", ".."):
+        why = why or "it names no folder of its own"
         raise OutputFolderError(f"refusing to use {path} as an output folder: {why}; give a new folder, e.g. out/run")
     if target.is_symlink():
         raise OutputFolderError(f"output folder {path} is a symbolic link; give a real folder name")
     if target.exists():
         if not target.is_dir():
             raise OutputFolderError(f"output folder {path} exists and is a file; remove it or choose another name")
-        if not force and not is_owned(target) and any(target.iterdir()):
+        try:
+            foreign = not is_owned(target) and any(target.iterdir())
+        except OSError as exc:
+            raise OutputFolderError(f"output folder {path} cannot be read ({exc.strerror}); choose another --out") from exc
+        if foreign and not force:
             raise OutputFolderError(
                 f"output folder {path} exists and was not written by tryon (no {OWNER_MARKER}); it would be "
                 f"replaced: choose a new folder, empty it, or pass --force to replace it")
@@ -182,12 +208,40 @@ def claim_work_dir(path: str | os.PathLike[str], resume: bool = False, force: bo
     An owned folder left by an earlier run is cleared unless resuming; a foreign one is
     refused like an output folder."""
     work = check_output_dir(path, force=force)
-    if work.exists() and not resume and any(work.iterdir()):
+    if work.exists() and not resume:
+        _lock(work)  # refuses while another run writes there
+        _unlock(work)
         shutil.rmtree(work)
-    work.mkdir(parents=True, exist_ok=True)
+    work.mkdir(parents=True, exist_ok=resume)
     if not is_owned(work):
         _write_marker(work)
+    _lock(work)
     return work
+
+
+_LOCKS: dict[str, int] = {}
+
+
+def _lock(work: Path) -> None:
+    """Hold an exclusive lock on `work` for the rest of this run (released by
+    `publish_dir` or when the process ends): two runs never share a working folder."""
+    key = str(work.resolve())
+    if key in _LOCKS:
+        return
+    fd = os.open(work / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        raise OutputFolderError(f"another tryon run is writing {work}; wait for it or choose another --out") from exc
+    _LOCKS[key] = fd
+
+
+def _unlock(work: Path) -> None:
+    fd = _LOCKS.pop(str(work.resolve()), None)
+    if fd is not None:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
 
 
 def publish_dir(work: str | os.PathLike[str], target: str | os.PathLike[str], force: bool = False) -> Path:
@@ -195,6 +249,8 @@ def publish_dir(work: str | os.PathLike[str], target: str | os.PathLike[str], fo
     work, target = Path(work), check_output_dir(target, force=force)
     if not is_owned(work):
         _write_marker(work)
+    _unlock(work)
+    (work / ".lock").unlink(missing_ok=True)
     os.chmod(work, 0o777 & ~_umask())
     _swap_into_place(work, target)
     return target

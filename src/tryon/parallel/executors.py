@@ -93,9 +93,20 @@ class LocalExecutor:
 
 # ---------------------------------------------------------------------------- Ray
 
+_AUTH_KEYS = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN")
+_USER_AUTH: dict[str, str | None] | None = None  # the user's own settings, before a local Ray changed them
+
+
 def ray_environment() -> None:
     """Environment for joining a Ray cluster: no usage stats; token authentication only
     where the user's environment asks for it (as the cluster was started)."""
+    if _USER_AUTH is not None:  # undo what a local Ray of an earlier run set
+        for key, value in _USER_AUTH.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+        _reload_ray_settings()
     for key, value in RAY_ENV.items():
         os.environ.setdefault(key, value)
 
@@ -104,9 +115,16 @@ def local_ray_environment() -> None:
     """Environment for a Ray of this run's own. Ray's servers listen on every interface,
     so the local Ray requires a fresh random token from every client: only this process
     and the workers it starts (which inherit the environment) can submit work to it."""
+    global _USER_AUTH
+    if _USER_AUTH is None:
+        _USER_AUTH = {key: os.environ.get(key) for key in _AUTH_KEYS}
     os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
     os.environ["RAY_AUTH_MODE"] = "token"
     os.environ["RAY_AUTH_TOKEN"] = secrets.token_hex(32)
+    _reload_ray_settings()
+
+
+def _reload_ray_settings() -> None:
     if "ray" in sys.modules:  # Ray read its settings when it was imported: make it read them again
         from ray._raylet import AuthenticationTokenLoader, Config
 
@@ -139,6 +157,8 @@ def connect_ray(address: str | None, workers: int, object_store_mb: int = 256) -
     `workers` CPUs and a small object store. True when this call started it."""
     if ray_is_initialized():
         return False
+    if address == "local":
+        address = None
     if address:
         ray_environment()
     else:

@@ -37,7 +37,7 @@ from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
 from tryon.sim.loop import run
 from tryon.sim.model import ClothModel, ClothState, PinGroup
 from tryon.sim.obstacles import Obstacle
-from tryon.sim.origin import PatternMesh, PatternOrigin
+from tryon.sim.origin import GridOrigin, PatternMesh, PatternOrigin
 from tryon.sim.scene import Scene, parse_scene
 
 
@@ -312,9 +312,10 @@ def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: li
 
 
 def _with_dt(scene: Scene, model: ClothModel, dt: float, name: str) -> Scene:
+    """The scene with another cloth (its origin kept only when the cloth is the scene's own)."""
     return Scene(name=name, model=model, dt=dt, duration=scene.duration, frame_time=scene.frame_time,
                  options=copy.copy(scene.options), description=scene.description, spec=scene.spec,
-                 origin=scene.origin)
+                 origin=scene.origin if model is scene.model else None)
 
 
 LEVELS = ("auto", "coarsen", "subdivide")
@@ -345,7 +346,6 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
     `proxy.CROP_REACH` of the garment, unchanged; None the whole body."""
     if obstacle_cell not in (None, "auto", "crop") and not float(obstacle_cell) > 0:
         raise SceneError(f"the coarse obstacle cell size must be positive, got {obstacle_cell}")
-    spec = scene.spec or {}
     garment = isinstance(scene.origin, PatternOrigin)
     if dt_ratio is None:
         dt_ratio = GARMENT_DT_RATIO if garment else 1
@@ -353,7 +353,7 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
         raise SceneError(f"the coarse time step must be a whole multiple of the fine one, got ratio {dt_ratio}")
     if level not in LEVELS:
         raise SceneError(f"unknown hierarchy level {level!r}; use one of {', '.join(LEVELS)}")
-    grid = "grid" in (spec.get("cloth") or {})
+    grid = isinstance(scene.origin, GridOrigin)
     if level == "auto":
         level = "coarsen" if garment or grid else "subdivide"
     if level == "subdivide":

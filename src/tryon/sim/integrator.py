@@ -128,8 +128,10 @@ class ImplicitEulerSolver:
 
     def restore_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         """Undo-free counterpart of `checkpoint_arrays` (call before the first step)."""
-        import_tree_cache(arrays)
         last = arrays.get("solver_last_dv")
+        if last is not None and (np.shape(last) != (self.model.num_vertices, 3) or not np.all(np.isfinite(last))):
+            raise ValueError("the solver's warm start does not fit the cloth")
+        import_tree_cache(arrays)
         self._last_dv = None if last is None else np.array(last, dtype=np.float64)
 
     # ------------------------------------------------------------------ internals

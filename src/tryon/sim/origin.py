@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PatternMesh:
     """A pattern triangulated at some edge length with its seams welded: faces [F,3]
     (vertex ids 0..V-1), per-corner material coordinates [F,3,2] (m) and the pattern
@@ -36,7 +36,7 @@ class GridOrigin:
     resolution: tuple[int, int]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PatternOrigin:
     """A cloth triangulated from a sewing pattern at `edge_length` (m); `face_panel` [F]
     is the pattern piece of each of its faces, `remesh(edge_length)` the same pattern

@@ -1,17 +1,19 @@
 """Run a scene to the end: step, record frames, measure, checkpoint, write outputs.
 
-Outputs of `run_scene(scene, out_dir)`:
+Outputs of `run_scene(scene, out_dir, picture=...)`:
   frames.npz (positions [T,N,3], faces, uv, times), obj/frame_0000.obj ..., summary.json,
-  last_frame.png. The directory is assembled under `<out>.partial` and renamed when
-  complete; a checkpoint there lets an interrupted run resume (`resume=True`).
+  and last_frame.png when a `picture` function is given (`tryon simulate` passes
+  `tryon.render.sim_pictures.render_state_png`). The directory is assembled under
+  `<out>.partial` and renamed when complete; a checkpoint there lets an interrupted run
+  resume exactly (`resume=True`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,7 +21,7 @@ import numpy as np
 import torch
 
 from tryon.errors import InputFileError
-from tryon.io.npz import read_npz
+from tryon.io.npz import float_array, read_npz
 from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir, publish_dir
 from tryon.sim.integrator import ImplicitEulerSolver, StepStats
 from tryon.sim.loop import FrameRecorder, RunOutcome, StepRecord, run
@@ -40,7 +42,12 @@ class RunResult:
 
 
 def scene_fingerprint(scene: Scene) -> str:
-    return hashlib.sha1(json.dumps(scene.spec, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    """What a checkpoint must agree with to be resumed: the scene, the solver options and
+    the software version."""
+    from tryon import __version__
+
+    key = {"spec": scene.spec, "options": dataclasses.asdict(scene.options), "version": __version__}
+    return hashlib.sha1(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def simulate(scene: Scene, progress: bool = True, checkpoint_dir: Path | None = None, resume: bool = False,
@@ -115,37 +122,39 @@ def _save_checkpoint(path: Path, scene: Scene, outcome: RunOutcome, frames: Fram
     totals = {k: getattr(t, k) for k in _TOTAL_FIELDS} | {"seconds": t.seconds}
     progress = {"step": outcome.step, "wall_s": outcome.wall_s, "retried_steps": outcome.retried_steps,
                 "totals": totals}
-    tmp = path.with_suffix(".tmp.npz")
     state = outcome.state
-    np.savez(tmp, x=state.x.numpy(), v=state.v.numpy(), t=state.t, frames=np.stack(frames.positions),
-             times=np.asarray(frames.times), fingerprint=scene_fingerprint(scene), progress=json.dumps(progress),
-             **{f"solver_{k}": v for k, v in solver.checkpoint_arrays().items()})
-    os.replace(tmp, path)
+    with atomic_write(path, "wb") as fh:  # flushed to disk before it replaces the previous checkpoint
+        np.savez(fh, x=state.x.numpy(), v=state.v.numpy(), t=state.t, frames=np.stack(frames.positions),
+                 times=np.asarray(frames.times), fingerprint=scene_fingerprint(scene), progress=json.dumps(progress),
+                 **{f"solver_{k}": v for k, v in solver.checkpoint_arrays().items()})
 
 
 def _load_checkpoint(path: Path, scene: Scene, solver: ImplicitEulerSolver) -> tuple[RunOutcome, list, list] | None:
     if not path.exists():
         return None
     arrays = read_npz(path, "checkpoint")
+    source = f"checkpoint {path}"
     try:
-        fingerprint = str(arrays["fingerprint"])
-        progress = json.loads(str(arrays["progress"]))
-        x, v, frames = arrays["x"], arrays["v"], arrays["frames"]
+        if str(arrays["fingerprint"]) != scene_fingerprint(scene):
+            raise InputFileError(f"{source} belongs to a different scene, solver setting or tryon version; run "
+                                 "again without --resume to start over")
         n = scene.model.num_vertices
-        if x.shape != (n, 3) or v.shape != (n, 3) or frames.ndim != 3 or frames.shape[1:] != (n, 3):
-            raise ValueError("array shapes do not match the scene's cloth")
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise InputFileError(f"checkpoint {path} cannot be read ({exc}); run again without --resume") from exc
-    if fingerprint != scene_fingerprint(scene):
-        raise InputFileError(f"checkpoint {path} belongs to a different scene (its settings changed since); run "
-                             "again without --resume to start over")
-    solver.restore_arrays({k[len("solver_"):]: a for k, a in arrays.items() if k.startswith("solver_")})
-    totals = progress["totals"]
-    state = ClothState(torch.from_numpy(x), torch.from_numpy(v), float(arrays["t"]))
-    outcome = RunOutcome(state, int(progress["step"]), wall_s=float(progress["wall_s"]),
-                         retried_steps=int(progress["retried_steps"]),
-                         totals=StepStats(**{k: totals[k] for k in _TOTAL_FIELDS}, seconds=dict(totals["seconds"])))
-    return outcome, list(frames), [float(t) for t in arrays["times"]]
+        x, v = float_array(arrays, "x", source, (n, 3)), float_array(arrays, "v", source, (n, 3))
+        frames = float_array(arrays, "frames", source, (None, n, 3))
+        times = float_array(arrays, "times", source, (len(frames),))
+        progress = json.loads(str(arrays["progress"]))
+        step, t = int(progress["step"]), float(arrays["t"])
+        if not (0 < step <= scene.num_steps and abs(t - step * scene.dt) < 1e-6 * max(1.0, t)):
+            raise ValueError(f"step {step} at t = {t} s does not lie in this run of {scene.num_steps} steps")
+        totals = progress["totals"]
+        stats = StepStats(**{k: type(getattr(StepStats, k, 0))(totals[k]) for k in _TOTAL_FIELDS},
+                          seconds={k: float(totals["seconds"][k]) for k in ("forces", "solve", "collision")})
+        outcome = RunOutcome(ClothState(torch.from_numpy(x), torch.from_numpy(v), t), step,
+                             wall_s=float(progress["wall_s"]), retried_steps=int(progress["retried_steps"]), totals=stats)
+        solver.restore_arrays({k[len("solver_"):]: a for k, a in arrays.items() if k.startswith("solver_")})
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputFileError(f"{source} cannot be used ({exc}); run again without --resume") from exc
+    return outcome, list(frames), [float(t) for t in times]
 
 
 # picture(scene, positions [N,3], time, path): e.g. `tryon.render.sim_pictures.render_state_png`

@@ -46,7 +46,7 @@ from tryon.sim import obstacles as obs
 from tryon.sim.integrator import StepOptions
 from tryon.sim.mesh import ClothMesh, grid_corner, grid_mesh, mesh_from_obj
 from tryon.sim.model import ClothModel, CollisionSettings, PinGroup, Wind
-from tryon.sim.origin import ClothOrigin
+from tryon.sim.origin import ClothOrigin, GridOrigin
 from tryon.sim.scene_schema import (ClothSpec, MotionSpec, ObstacleSpec, SceneSpec, safe_name, validate_scene_spec)
 
 TOP_KEYS = set(SceneSpec.model_fields)
@@ -121,8 +121,9 @@ def parse_scene(spec: Any, base_dir: Path | None = None, default_name: str = "sc
     )
     options = StepOptions(linear_solver=solver.linear, max_substep_depth=solver.max_substep_depth,
                           pcg_tol=solver.pcg_tol) if solver else StepOptions()
+    origin = GridOrigin(tuple(corner_res)) if corner_res is not None else None
     return Scene(name=name, model=model, dt=s.dt, duration=s.duration, frame_time=frame_time, options=options,
-                 description=s.description, spec=s.model_dump(mode="json", exclude_unset=True))
+                 description=s.description, spec=s.model_dump(mode="json", exclude_unset=True), origin=origin)
 
 
 def _estimated_obstacle_vertices(o: Any) -> int:

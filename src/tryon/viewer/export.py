@@ -84,7 +84,8 @@ def _title_and_info(seq: dict, animation: str | None) -> tuple[str, list[str]]:
     return title, info
 
 
-def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str | Path | None = None) -> Path:
+def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str | Path | None = None,
+                 force: bool = False) -> Path:
     """Write the viewer for `drape_dir` (or its animation `animation`) and return its directory."""
     drape_dir = Path(drape_dir)
     seq = _load_sequence(drape_dir, animation)
@@ -113,7 +114,7 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
         "colors": {"skin": list(SKIN), "cloth": list(CLOTH)},
     }
     out = Path(out) if out is not None else drape_dir / ("viewer" if animation is None else f"viewer-{animation}")
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, force=force) as tmp:
         for name in STATIC_FILES:
             with resources.as_file(resources.files("tryon.viewer").joinpath(f"static/{name}")) as src:
                 shutil.copyfile(src, tmp / name)

@@ -194,7 +194,9 @@ def push_outside(x: Any, surface_vertices: Any, surface_faces: Any, gap: float |
     pseudonormal to `gap`; `fixed` (a mask or indices) never move. With several gaps, the
     smallest one whose result `accept` takes (e.g. "no crossing left") is used, else the
     largest. Returns (positions [N,3], moved mask [N], the gap used)."""
-    gaps = [float(gap)] if np.ndim(gap) == 0 else [float(g) for g in gap]
+    gaps = sorted([float(gap)] if np.ndim(gap) == 0 else [float(g) for g in gap])
+    if not gaps:
+        raise ValueError("push_outside needs at least one gap")
     x = as_points(x, "points")
     d, q, n = nearest_surface_points(x, surface_vertices, surface_faces)
     for g in gaps:

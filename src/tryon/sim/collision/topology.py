@@ -119,11 +119,29 @@ def export_tree_cache() -> dict[str, np.ndarray]:
 
 def import_tree_cache(arrays: dict[str, np.ndarray]) -> None:
     """Replace the BVH topology cache by one saved with `export_tree_cache`."""
-    _TREES.clear()
+    trees = {}
     i = 0
     while f"bvh{i}_key" in arrays:
-        key = np.asarray(arrays[f"bvh{i}_key"], dtype=np.int64)
-        fp = int(np.asarray(arrays[f"bvh{i}_fingerprint"], dtype=np.uint64)[0])
+        key = np.asarray(arrays[f"bvh{i}_key"]).reshape(-1)
+        fp = np.asarray(arrays[f"bvh{i}_fingerprint"]).reshape(-1)
+        if key.dtype.kind not in "iu" or len(key) != 3 or fp.dtype != np.uint64 or len(fp) != 1:
+            raise ValueError(f"cached BVH {i}: malformed key")
         parts = [np.ascontiguousarray(arrays[f"bvh{i}_{name}"]) for name in _TREE_PARTS]
-        _TREES[(tuple(int(k) for k in key[:-1]), fp)] = [*parts, int(key[-1])]
+        _check_tree(int(key[0]), *parts)
+        trees[(tuple(int(k) for k in key[:-1]), int(fp[0]))] = [*parts, int(key[-1])]
         i += 1
+    _TREES.clear()
+    _TREES.update(trees)
+
+
+def _check_tree(n_faces: int, order: np.ndarray, child: np.ndarray, first: np.ndarray, count: np.ndarray) -> None:
+    """A tree the compiled traversal can walk without reading outside its arrays (numba
+    does not check bounds): `build_tree`'s layout over `n_faces` primitives."""
+    nodes = len(first)
+    ok = (all(a.dtype == np.int64 for a in (order, child, first, count)) and order.shape == (n_faces,)
+          and child.shape == (nodes, 2) and count.shape == (nodes,)
+          and np.array_equal(np.sort(order), np.arange(n_faces))
+          and child.min(initial=-1) >= -1 and child.max(initial=-1) < nodes
+          and first.min(initial=0) >= 0 and count.min(initial=0) >= 0 and np.all(first + count <= n_faces))
+    if not ok:
+        raise ValueError("a cached BVH does not fit its mesh")
