@@ -27,7 +27,7 @@ from tryon.body.fit import BodyFit, Measurements, fit_body
 from tryon.body.measure import drafting_measurements
 from tryon.body.motion import morph_keyframes
 from tryon.body.pose import BodyPose, posed_body
-from tryon.errors import TryonError
+from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, draft
 from tryon.garment.dress import DressedGarment, dress_cached
@@ -35,6 +35,13 @@ from tryon.garment.sizes import SIZES, size_measurements
 
 STATE_FILE = "drape_state.npz"
 DRAPE_SUBSTEP_DEPTH = 1
+# Draping a garment is slow motion: gravity over a couple of seconds and a body changing
+# shape at well under 1 m/s. A vertex faster than this has been flung by a failed solve or
+# collision response: the step is redone from its start, its velocities dropped and dt halved.
+PLAUSIBLE_SPEED = 5.0  # m/s
+# The rigid fail-safe freezes the zones it cannot resolve; that many fail-safe steps in a
+# row means the drape cannot make progress (the garment is caught in itself or the body).
+FAILSAFE_STREAK = 5
 
 
 @dataclass
@@ -129,6 +136,45 @@ def keep_outside(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarra
     return x
 
 
+def _where(x: np.ndarray, verts: np.ndarray, limit: int = 5) -> str:
+    """A few vertex ids with their positions (cm), for error messages."""
+    verts = np.asarray(verts)[:limit]
+    return ", ".join(f"{int(v)} at ({', '.join(f'{100 * c:.1f}' for c in x[v])}) cm" for v in verts)
+
+
+def check_start(x: np.ndarray, faces: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, what: str) -> None:
+    """Collision handling keeps a garment free of crossings only if it starts free of them:
+    a dressed garment through itself or through the body cannot drape (every step would end
+    in the fail-safe), so it is refused here with the crossing vertices named."""
+    from tryon.sim.collision.intersections import edge_face_intersections
+
+    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
+    own = edge_face_intersections(x, e, x, faces, True)
+    body = edge_face_intersections(x, e, body_vertices, body_faces, False)
+    if len(own) or len(body):
+        verts = np.unique(np.concatenate([e[own[:, 0]].ravel(), e[body[:, 0]].ravel()]))
+        raise SimulationError(
+            f"{what} starts crossing itself at {len(own)} and the body at {len(body)} edge-triangle pairs "
+            f"({len(verts)} vertices, e.g. {_where(x, verts)}); it cannot be draped from there")
+
+
+def stall_diagnosis(solver, x: np.ndarray) -> str:
+    """What the last collision response was stuck on: its impacts by kind, its impact
+    zones and the cloth vertices most often involved."""
+    rep = getattr(solver, "last_collision", None)
+    if rep is None or len(rep.constraints) == 0:
+        return "no impacts recorded"
+    idx = rep.constraints.idx
+    cloth = idx[idx >= 0]
+    verts, count = np.unique(cloth, return_counts=True)
+    top = verts[np.argsort(-count)]
+    kinds = ", ".join(f"{n} {k}" for k, n in rep.constraints.counts().items() if n)
+    lo, hi = x[verts].min(0), x[verts].max(0)
+    return (f"{len(rep.constraints)} impacts ({kinds}) in {rep.zones} zones over {len(verts)} vertices, "
+            f"between ({', '.join(f'{100 * c:.0f}' for c in lo)}) and ({', '.join(f'{100 * c:.0f}' for c in hi)}) cm; "
+            f"most involved: {_where(x, top)}")
+
+
 def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
@@ -148,10 +194,23 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
     t_end = request.morph_time + request.max_settle_time
     out_frames, out_times = [state.x.numpy().copy()], [0.0]
-    stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
+    stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [],
+             "max_step_s": 0.0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
+    check_start(state.x.numpy(), garment.faces, start.vertices, start.faces, f"the dressed {garment.name}")
     n_steps = int(np.ceil(t_end / request.dt))
     bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
     settled = False
+    streak = 0
+
+    def advance(s, dt):
+        s, st = solver.step(s, dt)
+        stats["substeps"] += st.substeps
+        stats["retried_steps"] += int(st.retried)
+        stats["failsafe_steps"] += int(st.fallback)
+        for k, v in st.seconds.items():
+            stats["seconds"][k] += v
+        return s, st
+
     while state.t < t_end - 1e-9:
         if state.t >= request.morph_time:
             model.collision.friction = request.friction
@@ -160,19 +219,41 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             carried = state.x.numpy() + binding.motion(model.obstacles.vertices_at(state.t - request.dt), now)
             carried = keep_outside(carried, now, start.faces, request.thickness)
             state = type(state)(torch.from_numpy(carried), state.v, state.t)
-        state, st = solver.step(state, request.dt)
+        tic = time.perf_counter()
+        before = state
+        state, st = advance(state, request.dt)
+        speeds = np.linalg.norm(state.v.numpy(), axis=1)
+        if speeds.max() > PLAUSIBLE_SPEED:
+            # flung: redo the step from its start, without its velocities, in two halves
+            fast = np.argsort(-speeds)[:5]
+            record = {"t": round(before.t, 4), "speed_m_s": round(float(speeds.max()), 2), "vertices": fast.tolist()}
+            retry = type(before)(before.x, torch.zeros_like(before.v), before.t)
+            for _ in range(2):
+                retry, st2 = advance(retry, 0.5 * request.dt)
+                st.fallback |= st2.fallback
+            speeds = np.linalg.norm(retry.v.numpy(), axis=1)
+            if speeds.max() > PLAUSIBLE_SPEED:
+                raise SimulationError(
+                    f"draping {garment.name}: at t={before.t:.2f}s the cloth moves at {speeds.max():.1f} m/s even after "
+                    f"redoing the step in halves from rest (at most {PLAUSIBLE_SPEED} m/s is plausible); fastest "
+                    f"{_where(retry.x.numpy(), np.argsort(-speeds))}; {stall_diagnosis(solver, retry.x.numpy())}")
+            record["recovered_speed_m_s"] = round(float(speeds.max()), 3)
+            stats["speed_recoveries"].append(record)
+            state = retry
+        streak = streak + 1 if st.fallback else 0
+        if streak >= FAILSAFE_STREAK:
+            raise SimulationError(
+                f"draping {garment.name} makes no progress: at t={state.t:.2f}s the collision response has failed "
+                f"{streak} steps in a row and the rigid fail-safe froze the cloth; {stall_diagnosis(solver, state.x.numpy())}")
         stats["steps"] += 1
-        stats["substeps"] += st.substeps
-        stats["retried_steps"] += int(st.retried)
-        for k, v in st.seconds.items():
-            stats["seconds"][k] += v
+        stats["max_step_s"] = max(stats["max_step_s"], time.perf_counter() - tic)
         bar.update(1)
         if stats["steps"] % 4 == 0:
             out_frames.append(state.x.numpy().copy())
             out_times.append(state.t)
-        speed = float(np.linalg.norm(state.v.numpy(), axis=1).max())
+        speed = float(speeds.max())
         bar.set_postfix(speed=f"{speed:.3f}")
-        if state.t >= request.morph_time and speed < request.rest_speed:
+        if state.t >= request.morph_time and speed < request.rest_speed and not st.fallback:
             settled = True
             break
     bar.close()

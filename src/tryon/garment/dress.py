@@ -38,7 +38,7 @@ from tryon.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 
-DRESS_VERSION = 9
+DRESS_VERSION = 15
 
 
 # --------------------------------------------------------------------------- tubes
@@ -149,9 +149,14 @@ class Midline:
         self.front = np.full(len(self.z), np.nan)
         self.back = np.full(len(self.z), np.nan)
         for k, z in enumerate(self.z):
-            sel = v[np.abs(v[:, 2] - z) < 0.6 * step]
+            sel = v[np.abs(v[:, 2] - z) < 0.6 * step + 0.01]
             if len(sel):
                 self.front[k], self.back[k] = sel[:, 1].min(), sel[:, 1].max()
+        for a in (self.front, self.back):  # a 5 cm running mean where defined: single slices are noisy
+            good = np.isfinite(a)
+            num = np.convolve(np.where(good, a, 0.0), np.ones(5), mode="same")
+            den = np.convolve(good.astype(float), np.ones(5), mode="same")
+            a[good] = num[good] / den[good]
 
     def at(self, z: np.ndarray, what: str) -> np.ndarray:
         vals = getattr(self, what)
@@ -207,6 +212,18 @@ def _panel_half_width(panel: Panel) -> float:
     return max(abs(lo[0]), abs(hi[0]))
 
 
+def _row_half_width(panel: Panel, y: np.ndarray) -> np.ndarray:
+    """Half width of a symmetric torso panel at heights y, up to the top of its side seams
+    (the underarm; a skirt's waist), so that every row reaches the side of the body and the
+    side seams start closed however the waist is shaped; above the side seams (shoulders,
+    armholes) the width at their top."""
+    tops = [e.points[:, 1].max() for e in panel.edges if e.name.startswith("side")]
+    if not tops:
+        return np.full(len(y), _panel_half_width(panel))
+    lo, hi = _outline_span(panel, np.minimum(y, min(tops) - 1e-6))
+    return np.maximum(np.maximum(np.abs(lo), np.abs(hi)), 1e-6)
+
+
 def place_torso(points: np.ndarray, panel: Panel, tube: TorsoTube) -> np.ndarray:
     """Front/back panel onto the torso tube. A bodice's top `over_shoulder` metres (its
     placement key) bend over the shoulders (the depth shrinks to the mid-plane), so front
@@ -223,7 +240,7 @@ def place_torso(points: np.ndarray, panel: Panel, tube: TorsoTube) -> np.ndarray
     front = panel.placement.get("side", "front") == "front"
     depth = tube.at(zq, "front" if front else "back")
     depth = depth * np.cos(0.5 * np.pi * lift)
-    frac = np.clip(points[:, 0] / _panel_half_width(panel), -1.0, 1.0)
+    frac = np.clip(points[:, 0] / _row_half_width(panel, points[:, 1]), -1.0, 1.0)
     x, d = _half_ellipse(tube.at(zq, "half"), depth, frac)
     if front:
         return np.stack([x, tube.at(zq, "yc") - d, z], 1)
@@ -234,10 +251,11 @@ def _outline_span(panel: Panel, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Leftmost and rightmost x of the panel outline at heights y."""
     p = panel.outline(80)
     q = np.roll(p, -1, axis=0)
+    y = np.clip(y, p[:, 1].min() + 1e-4, p[:, 1].max() - 1e-4)  # the top and bottom rows: just inside
     lo = np.full(len(y), np.inf)
     hi = np.full(len(y), -np.inf)
     for a, b in zip(p, q):
-        if a[1] == b[1]:
+        if abs(b[1] - a[1]) < 1e-9:  # horizontal (up to rounding): its ends are on the neighbours
             continue
         t = (y - a[1]) / (b[1] - a[1])
         ok = (t >= 0) & (t <= 1)
@@ -267,8 +285,8 @@ def place_sleeve(points: np.ndarray, panel: Panel, tube: ArmTube, limb: str) -> 
 
 
 CROTCH_BLEND = 0.10  # m: below the crotch point the inseam moves from the midline to the leg's inner side
-LEG_GAP = 0.003      # m: each leg's cloth keeps this far from the midline, but at the crotch seams ...
-LEG_GAP_RAMP = 0.02  # m: ... reached this far from them, so the two legs never start in contact
+LEG_GAP = 0.004      # m: each leg's cloth keeps this far from the midline, but at the crotch seams ...
+LEG_GAP_RAMP = 0.006  # m: ... reached this far from them, so the two legs never start in contact
 
 
 def _smoothstep(t: np.ndarray) -> np.ndarray:
@@ -462,7 +480,7 @@ SEAMS_CLOSED = 0.005  # m: a placement whose every stitch pair is this close is 
 
 
 def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarray, body: BodyPose, fabric: Fabric,
-          name: str, dt: float = 0.01, max_steps: int = 60, rest_speed: float = 0.02) -> tuple[np.ndarray, dict]:
+          name: str, dt: float = 0.01, max_steps: int = 40, rest_speed: float = 0.02) -> tuple[np.ndarray, dict]:
     """Let a welded garment placed around the body relax from its placement strain: the
     cloth simulator with the body as obstacle, self-collision on, gravity off and
     still-air damping, until the fastest vertex is slower than `rest_speed` (at least 5

@@ -84,6 +84,7 @@ class ImplicitEulerSolver:
         self._faces_np = faces
         self._edges_np = model.edges.numpy()
         self._last_dv: np.ndarray | None = None
+        self.last_collision: col.CollisionReport | None = None  # the latest response's report, for diagnoses
 
     # ------------------------------------------------------------------ public API
     def step(self, state: ClothState, dt: float, control: Control | None = None) -> tuple[ClothState, StepStats]:
@@ -305,6 +306,7 @@ class ImplicitEulerSolver:
     def _respond(self, x0, x1, ob0, ob1, stats: StepStats, allow_fallback: bool):
         m = self.model
         x_fixed, report = self.collision_response(x0, x1, ob0, ob1)
+        self.last_collision = report
         stats.impacts = report.impacts_found
         stats.collision_iterations = report.iterations
         if report.success and np.all(np.isfinite(x_fixed)):
