@@ -472,7 +472,13 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
         bar.set_postfix(gap_mm=f"{gap * 1000:.1f}")
     bar.close()
     if gap > 0.01:
-        raise SimulationError(f"sewing {mesh.pattern.name}: seams still {gap * 100:.1f} cm apart after {steps} steps")
+        x = state.x.numpy()
+        g = np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1)
+        worst = np.argsort(-g)[:3]
+        names = [mesh.pattern.panels[k].name for k in mesh.panel_of_vertex[st[worst, 0]]]
+        where = "; ".join(f"{n} vertex {int(st[k, 0])} at ({', '.join(f'{100 * c:.1f}' for c in x[st[k, 0]])}) cm, "
+                          f"{100 * g[k]:.1f} cm from its partner" for n, k in zip(names, worst))
+        raise SimulationError(f"sewing {mesh.pattern.name}: seams still {gap * 100:.1f} cm apart after {steps} steps ({where})")
     return state.x.numpy(), {"sew_steps": steps, "sew_gap_start_m": gap0, "sew_gap_end_m": gap, "sew_s": time.perf_counter() - t0}
 
 
