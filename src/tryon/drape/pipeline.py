@@ -184,6 +184,43 @@ def stall_diagnosis(solver, x: np.ndarray) -> str:
             f"most involved: {_where(x, top)}")
 
 
+WAISTBAND_GARMENTS = ("trousers", "skirt")
+
+
+def waistband_vertices(garment: DressedGarment) -> np.ndarray:
+    """The vertices of the waist opening of garments hung from the waist (trousers,
+    skirts): the highest boundary loop. Empty for other garments."""
+    if garment.pattern is None or garment.pattern.meta.get("garment", garment.pattern.name) not in WAISTBAND_GARMENTS:
+        return np.zeros(0, np.int64)
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    f = garment.faces
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), 1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    b = uniq[count == 1]
+    n = len(garment.vertices)
+    _, labels = connected_components(sp.coo_matrix((np.ones(len(b)), (b[:, 0], b[:, 1])), shape=(n, n)), directed=False)
+    verts = np.unique(b)
+    loops = [verts[labels[verts] == k] for k in np.unique(labels[verts])]
+    return max(loops, key=lambda v: garment.vertices[v, 2].mean())
+
+
+def waistband_pin(garment: DressedGarment, frames: np.ndarray, times: np.ndarray, body_faces: np.ndarray):
+    """A waistband holds trousers and skirts up (as a belt or a fitted band does): its
+    vertices are pinned to the skin under them, following the body while it changes shape."""
+    from tryon.sim.model import PinGroup
+    from tryon.sim.obstacles import Motion
+
+    verts = waistband_vertices(garment)
+    if len(verts) == 0:
+        return []
+    x = garment.vertices[verts]
+    bind = SkinBinding(x, frames[0], body_faces, near=1.0, far=2.0)  # weight 1: carried fully
+    keys = np.stack([x + bind.points(fr) - bind.points(frames[0]) for fr in frames])
+    return [PinGroup(torch.from_numpy(verts), Motion(keyframes=keys, keyframe_times=np.asarray(times)))]
+
+
 def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
@@ -194,7 +231,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     fabric = load_fabric(request.fabric)
     frames, times = morph_keyframes(start.vertices, target.vertices, request.morph_time)
     body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
-    model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body],
+    model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body], pins=waistband_pin(garment, frames, times, start.faces),
                        collision=CollisionSettings(thickness=request.thickness, friction=request.morph_friction, self_friction=0.3))
     # a failing step is split once, then its impact zones are made rigid: on a garment
     # far too small for the body, deeper splitting only repeats the same infeasible zones
