@@ -164,10 +164,18 @@ def _request():
                         edge_length=0.02, morph_time=0.02, max_settle_time=0.08)
 
 
-def test_a_garment_starting_through_the_body_is_refused_with_its_vertices():
+def test_a_garment_starting_through_itself_is_refused_with_its_vertices():
     body = _sphere()
-    with pytest.raises(SimulationError, match=r"starts crossing .* the body at [1-9]\d* edge-triangle pairs .*vertices, e\.g\. \d+ at"):
-        pipeline.simulate_drape(_request(), _patch(1.0), body, body, progress=False)
+    g = _patch(1.2)
+    # a second sheet of the same garment stabbed through the first one
+    stab = _patch(1.2)
+    stab.vertices = stab.vertices[:, [2, 1, 0]] + np.array([-1.2, 0.0, 1.2])
+    n = len(g.vertices)
+    both = DressedGarment(np.vstack([g.vertices, stab.vertices]), np.vstack([g.faces, stab.faces + n]),
+                          np.vstack([g.uv, stab.uv]), np.vstack([g.corner_uv, stab.corner_uv]),
+                          np.zeros(2 * len(g.faces), np.int64), None, np.zeros(0, np.int64), {"source": "two.obj"})
+    with pytest.raises(SimulationError, match=r"starts crossing itself at [1-9]\d* edge-triangle pairs \(\d+ vertices, e\.g\. \d+ at"):
+        pipeline.simulate_drape(_request(), both, body, body, progress=False)
 
 
 def test_a_drape_stuck_in_the_fail_safe_stops_with_a_diagnosis(monkeypatch):

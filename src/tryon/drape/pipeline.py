@@ -9,7 +9,7 @@
    body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
    the run continues until the cloth is at rest (static equilibrium: every vertex's mean
    velocity over the last `REST_WINDOW` steps below `rest_speed`) or `max_settle_time`
-   passes. The dressed garment must start free of crossings (`check_start`); a step that
+   passes. The dressed garment must start free of self-crossings (`check_start`); a step that
    flings cloth faster than `PLAUSIBLE_SPEED` is redone from rest in halves (recorded in
    `speed_recoveries`), and `FAILSAFE_STREAK` fail-safe steps in a row stop the drape
    with a `SimulationError` naming the impacts and vertices it is stuck on.
@@ -151,20 +151,22 @@ def _where(x: np.ndarray, verts: np.ndarray, limit: int = 5) -> str:
     return ", ".join(f"{int(v)} at ({', '.join(f'{100 * c:.1f}' for c in x[v])}) cm" for v in verts)
 
 
-def check_start(x: np.ndarray, faces: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, what: str) -> None:
+def check_start(x: np.ndarray, faces: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, what: str) -> int:
     """Collision handling keeps a garment free of crossings only if it starts free of them:
-    a dressed garment through itself or through the body cannot drape (every step would end
-    in the fail-safe), so it is refused here with the crossing vertices named."""
+    a dressed garment through itself cannot drape (every step would end in the fail-safe),
+    so it is refused here with the crossing vertices named. Coarse cloth edges through
+    the skin (at the neck, say) are pushed out by the contact forces: their number is
+    returned, for the report."""
     from tryon.sim.collision.intersections import edge_face_intersections
 
     e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
     own = edge_face_intersections(x, e, x, faces, True)
-    body = edge_face_intersections(x, e, body_vertices, body_faces, False)
-    if len(own) or len(body):
-        verts = np.unique(np.concatenate([e[own[:, 0]].ravel(), e[body[:, 0]].ravel()]))
+    if len(own):
+        verts = np.unique(np.concatenate([e[own[:, 0]].ravel(), faces[own[:, 1]].ravel()]))
         raise SimulationError(
-            f"{what} starts crossing itself at {len(own)} and the body at {len(body)} edge-triangle pairs "
-            f"({len(verts)} vertices, e.g. {_where(x, verts)}); it cannot be draped from there")
+            f"{what} starts crossing itself at {len(own)} edge-triangle pairs ({len(verts)} vertices, e.g. "
+            f"{_where(x, verts)}); it cannot be draped from there")
+    return len(edge_face_intersections(x, e, body_vertices, body_faces, False))
 
 
 def stall_diagnosis(solver, x: np.ndarray) -> str:
@@ -242,7 +244,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     out_frames, out_times = [state.x.numpy().copy()], [0.0]
     stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [],
              "max_step_s": 0.0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
-    check_start(state.x.numpy(), garment.faces, start.vertices, start.faces, f"the dressed {garment.name}")
+    stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
+                                                f"the dressed {garment.name}")
     n_steps = int(np.ceil(t_end / request.dt))
     bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
     settled = False
