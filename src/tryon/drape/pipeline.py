@@ -7,8 +7,12 @@
 4. Simulate: the body morphs from the fit model to the person over `morph_time`
    (a key-framed collision obstacle); cloth near the skin is carried along with the
    body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
-   the run continues until the cloth is at rest (static equilibrium: the fastest vertex
-   below `rest_speed`) or `max_settle_time` passes.
+   the run continues until the cloth is at rest (static equilibrium: every vertex's mean
+   velocity over the last `REST_WINDOW` steps below `rest_speed`) or `max_settle_time`
+   passes. The dressed garment must start free of self-crossings (`check_start`); a step that
+   flings cloth faster than `PLAUSIBLE_SPEED` is redone from rest in halves (recorded in
+   `speed_recoveries`), and `FAILSAFE_STREAK` fail-safe steps in a row stop the drape
+   with a `SimulationError` naming the impacts and vertices it is stuck on.
 5. Measure and write: meshes, GLB, renders, fit maps, report.json.
 """
 
@@ -16,6 +20,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -27,7 +32,7 @@ from tryon.body.fit import BodyFit, Measurements, fit_body
 from tryon.body.measure import drafting_measurements
 from tryon.body.motion import morph_keyframes
 from tryon.body.pose import BodyPose, posed_body
-from tryon.errors import TryonError
+from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, draft
 from tryon.garment.dress import DressedGarment, dress_cached
@@ -35,6 +40,17 @@ from tryon.garment.sizes import SIZES, size_measurements
 
 STATE_FILE = "drape_state.npz"
 DRAPE_SUBSTEP_DEPTH = 1
+# Draping a garment is slow motion: gravity over a couple of seconds and a body changing
+# shape at well under 1 m/s. A vertex faster than this has been flung by a failed solve or
+# collision response: the step is redone from its start, its velocities dropped and dt halved.
+PLAUSIBLE_SPEED = 5.0  # m/s
+# The rigid fail-safe freezes the zones it cannot resolve; that many fail-safe steps in a
+# row means the drape cannot make progress (the garment is caught in itself or the body).
+FAILSAFE_STREAK = 5
+# Static equilibrium is judged on the motion over this many steps (the mean velocity of
+# every vertex over that window): a vertex chattering in place against the skin (a hem
+# resting on the heel) does not move on, a garment still sliding or swinging does.
+REST_WINDOW = 4
 
 
 @dataclass
@@ -129,6 +145,84 @@ def keep_outside(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarra
     return x
 
 
+def _where(x: np.ndarray, verts: np.ndarray, limit: int = 5) -> str:
+    """A few vertex ids with their positions (cm), for error messages."""
+    verts = np.asarray(verts)[:limit]
+    return ", ".join(f"{int(v)} at ({', '.join(f'{100 * c:.1f}' for c in x[v])}) cm" for v in verts)
+
+
+def check_start(x: np.ndarray, faces: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, what: str) -> int:
+    """Collision handling keeps a garment free of crossings only if it starts free of them:
+    a dressed garment through itself cannot drape (every step would end in the fail-safe),
+    so it is refused here with the crossing vertices named. Coarse cloth edges through
+    the skin (at the neck, say) are pushed out by the contact forces: their number is
+    returned, for the report."""
+    from tryon.sim.collision.intersections import edge_face_intersections
+
+    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
+    own = edge_face_intersections(x, e, x, faces, True)
+    if len(own):
+        verts = np.unique(np.concatenate([e[own[:, 0]].ravel(), faces[own[:, 1]].ravel()]))
+        raise SimulationError(
+            f"{what} starts crossing itself at {len(own)} edge-triangle pairs ({len(verts)} vertices, e.g. "
+            f"{_where(x, verts)}); it cannot be draped from there")
+    return len(edge_face_intersections(x, e, body_vertices, body_faces, False))
+
+
+def stall_diagnosis(solver, x: np.ndarray) -> str:
+    """What the last collision response was stuck on: its impacts by kind, its impact
+    zones and the cloth vertices most often involved."""
+    rep = getattr(solver, "last_collision", None)
+    if rep is None or len(rep.constraints) == 0:
+        return "no impacts recorded"
+    idx = rep.constraints.idx
+    cloth = idx[idx >= 0]
+    verts, count = np.unique(cloth, return_counts=True)
+    top = verts[np.argsort(-count)]
+    kinds = ", ".join(f"{n} {k}" for k, n in rep.constraints.counts().items() if n)
+    lo, hi = x[verts].min(0), x[verts].max(0)
+    return (f"{len(rep.constraints)} impacts ({kinds}) in {rep.zones} zones over {len(verts)} vertices, "
+            f"between ({', '.join(f'{100 * c:.0f}' for c in lo)}) and ({', '.join(f'{100 * c:.0f}' for c in hi)}) cm; "
+            f"most involved: {_where(x, top)}")
+
+
+WAISTBAND_GARMENTS = ("trousers", "skirt")
+
+
+def waistband_vertices(garment: DressedGarment) -> np.ndarray:
+    """The vertices of the waist opening of garments hung from the waist (trousers,
+    skirts): the highest boundary loop. Empty for other garments."""
+    if garment.pattern is None or garment.pattern.meta.get("garment", garment.pattern.name) not in WAISTBAND_GARMENTS:
+        return np.zeros(0, np.int64)
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    f = garment.faces
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), 1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    b = uniq[count == 1]
+    n = len(garment.vertices)
+    _, labels = connected_components(sp.coo_matrix((np.ones(len(b)), (b[:, 0], b[:, 1])), shape=(n, n)), directed=False)
+    verts = np.unique(b)
+    loops = [verts[labels[verts] == k] for k in np.unique(labels[verts])]
+    return max(loops, key=lambda v: garment.vertices[v, 2].mean())
+
+
+def waistband_pin(garment: DressedGarment, frames: np.ndarray, times: np.ndarray, body_faces: np.ndarray):
+    """A waistband holds trousers and skirts up (as a belt or a fitted band does): its
+    vertices are pinned to the skin under them, following the body while it changes shape."""
+    from tryon.sim.model import PinGroup
+    from tryon.sim.obstacles import Motion
+
+    verts = waistband_vertices(garment)
+    if len(verts) == 0:
+        return []
+    x = garment.vertices[verts]
+    bind = SkinBinding(x, frames[0], body_faces, near=1.0, far=2.0)  # weight 1: carried fully
+    keys = np.stack([x + bind.points(fr) - bind.points(frames[0]) for fr in frames])
+    return [PinGroup(torch.from_numpy(verts), Motion(keyframes=keys, keyframe_times=np.asarray(times)))]
+
+
 def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
@@ -139,7 +233,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     fabric = load_fabric(request.fabric)
     frames, times = morph_keyframes(start.vertices, target.vertices, request.morph_time)
     body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
-    model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body],
+    model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body], pins=waistband_pin(garment, frames, times, start.faces),
                        collision=CollisionSettings(thickness=request.thickness, friction=request.morph_friction, self_friction=0.3))
     # a failing step is split once, then its impact zones are made rigid: on a garment
     # far too small for the body, deeper splitting only repeats the same infeasible zones
@@ -148,10 +242,26 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
     t_end = request.morph_time + request.max_settle_time
     out_frames, out_times = [state.x.numpy().copy()], [0.0]
-    stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
+    stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [],
+             "max_step_s": 0.0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
+    stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
+                                                f"the dressed {garment.name}")
     n_steps = int(np.ceil(t_end / request.dt))
     bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
     settled = False
+    streak = 0
+    window: deque = deque(maxlen=REST_WINDOW + 1)
+    drift = float("inf")
+
+    def advance(s, dt):
+        s, st = solver.step(s, dt)
+        stats["substeps"] += st.substeps
+        stats["retried_steps"] += int(st.retried)
+        stats["failsafe_steps"] += int(st.fallback)
+        for k, v in st.seconds.items():
+            stats["seconds"][k] += v
+        return s, st
+
     while state.t < t_end - 1e-9:
         if state.t >= request.morph_time:
             model.collision.friction = request.friction
@@ -160,26 +270,52 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             carried = state.x.numpy() + binding.motion(model.obstacles.vertices_at(state.t - request.dt), now)
             carried = keep_outside(carried, now, start.faces, request.thickness)
             state = type(state)(torch.from_numpy(carried), state.v, state.t)
-        state, st = solver.step(state, request.dt)
+        tic = time.perf_counter()
+        before = state
+        state, st = advance(state, request.dt)
+        speeds = np.linalg.norm(state.v.numpy(), axis=1)
+        if speeds.max() > PLAUSIBLE_SPEED:
+            # flung: redo the step from its start, without its velocities, in two halves
+            fast = np.argsort(-speeds)[:5]
+            record = {"t": round(before.t, 4), "speed_m_s": round(float(speeds.max()), 2), "vertices": fast.tolist()}
+            retry = type(before)(before.x, torch.zeros_like(before.v), before.t)
+            for _ in range(2):
+                retry, st2 = advance(retry, 0.5 * request.dt)
+                st.fallback |= st2.fallback
+            speeds = np.linalg.norm(retry.v.numpy(), axis=1)
+            if speeds.max() > PLAUSIBLE_SPEED:
+                raise SimulationError(
+                    f"draping {garment.name}: at t={before.t:.2f}s the cloth moves at {speeds.max():.1f} m/s even after "
+                    f"redoing the step in halves from rest (at most {PLAUSIBLE_SPEED} m/s is plausible); fastest "
+                    f"{_where(retry.x.numpy(), np.argsort(-speeds))}; {stall_diagnosis(solver, retry.x.numpy())}")
+            record["recovered_speed_m_s"] = round(float(speeds.max()), 3)
+            stats["speed_recoveries"].append(record)
+            state = retry
+        streak = streak + 1 if st.fallback else 0
+        if streak >= FAILSAFE_STREAK:
+            raise SimulationError(
+                f"draping {garment.name} makes no progress: at t={state.t:.2f}s the collision response has failed "
+                f"{streak} steps in a row and the rigid fail-safe froze the cloth; {stall_diagnosis(solver, state.x.numpy())}")
         stats["steps"] += 1
-        stats["substeps"] += st.substeps
-        stats["retried_steps"] += int(st.retried)
-        for k, v in st.seconds.items():
-            stats["seconds"][k] += v
+        stats["max_step_s"] = max(stats["max_step_s"], time.perf_counter() - tic)
         bar.update(1)
         if stats["steps"] % 4 == 0:
             out_frames.append(state.x.numpy().copy())
             out_times.append(state.t)
-        speed = float(np.linalg.norm(state.v.numpy(), axis=1).max())
+        speed = float(speeds.max())
+        window.append(state.x.numpy().copy())
+        drift = float(np.linalg.norm(window[-1] - window[0], axis=1).max()) / (request.dt * (len(window) - 1)) \
+            if len(window) == REST_WINDOW + 1 else float("inf")
         bar.set_postfix(speed=f"{speed:.3f}")
-        if state.t >= request.morph_time and speed < request.rest_speed:
+        if state.t >= request.morph_time and drift < request.rest_speed and not st.fallback:
             settled = True
             break
     bar.close()
     if out_times[-1] != state.t:
         out_frames.append(state.x.numpy().copy())
         out_times.append(state.t)
-    stats.update({"simulated_s": state.t, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max())})
+    stats.update({"simulated_s": state.t, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max()),
+                  "final_rest_speed": drift})
     return state.x.numpy(), out_frames, out_times, stats, solver
 
 

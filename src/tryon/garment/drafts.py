@@ -35,6 +35,7 @@ class Ease:
     short_sleeve: float = 0.20
     top_below_hip: float = 0.04
     skirt_below_knee: float = 0.02
+    waistband: float = 0.01  # trousers: a waistband fits close, so that it holds them up
 
 
 def bezier(name: str, p0, p1, p2, p3) -> Edge:
@@ -246,43 +247,86 @@ def draft_skirt(m: dict, ease: Ease) -> Pattern:
     return Pattern("skirt", [front, back], seams)
 
 
+# Trouser proportions. The block follows the usual straight-trouser construction (Aldrich,
+# "Metric Pattern Cutting for Menswear" / "... for Womenswear", the trouser block; the
+# same steps in Leena's pattern drafting lesson "men's pants", leenas.com/English/
+# draw_men_pants.html, and Wikibooks "Dressmaking/Pants"): a crotch line at the body's
+# crotch less a little ease, the hip line, a knee line 6 cm above the midpoint of crotch
+# line and hem, front and back panels a quarter of the seat (with ease) wide at the hip
+# line, -1 cm / +1 cm front / back, crotch extensions of about 1/16 (front) and 1/9 (back)
+# of the seat, the leg centred on the crease (the middle of the crotch line), knee and hem
+# widths a quarter of their circumference -1 / +1 cm.
+TROUSER_HEM_ABOVE_ANKLE = 0.01  # m: the hem just above the ankle joint, at the ankle bone
+TROUSER_CROTCH_EASE = 0.01   # m: the trouser's crotch point below the body's ("body rise + 1 cm")
+TROUSER_FRONT_EXTENSION = 1 / 16   # of the seat girth with ease
+TROUSER_BACK_EXTENSION = 1 / 9
+TROUSER_PANEL_OFFSET = 0.01  # m: back panels this much wider per side than a quarter, fronts narrower
+# Knee and hem widths are style ("the knee and hem are usually determined by fashion", R.
+# Duffy, "Measuring for trousers"): a classic straight leg has a knee of about 0.47 of the
+# seat (18 in for a 38 in seat, G. F. Hertzer, "Garment Cutting in the Twentieth Century",
+# "Tight pants") and a hem of about 0.43 of it (16-17 in for a 38-40 in seat; 16 in is the
+# narrow end of the usual 16-20 in); both at least enough to pass over the thigh's
+# lower part and the foot.
+TROUSER_KNEE_PER_SEAT = 0.47
+TROUSER_HEM_PER_SEAT = 0.43
+
+
+def trouser_dims(m: dict, ease: Ease) -> dict:
+    """The trouser block's lengths and widths (m) for body measurements `m`: length from
+    the waist to the ankle, rise and inseam, and the circumferences at seat, knee and hem."""
+    hem_z = m["ankle_height"] + TROUSER_HEM_ABOVE_ANKLE
+    crotch_z = m["crotch_height"] - TROUSER_CROTCH_EASE
+    seat = m["hip_girth"] + ease.hip
+    knee = max(TROUSER_KNEE_PER_SEAT * m["hip_girth"], 0.8 * m["thigh_girth"])
+    hem = max(TROUSER_HEM_PER_SEAT * m["hip_girth"], 0.7 * m["thigh_girth"])
+    return {"length": m["waist_height"] - hem_z, "inseam": crotch_z - hem_z, "rise": m["waist_height"] - crotch_z,
+            "hip_y": m["hip_height"] - hem_z, "seat": seat, "waist": m["waist_girth"] + ease.waistband,
+            "knee": knee, "hem": hem, "hem_z": hem_z}
+
+
 def trouser_leg(name: str, m: dict, ease: Ease, front: bool, limb: str) -> Panel:
     """One trouser panel drafted as the body's left leg seen from its side (front or
-    back), outseam on +x, then mirrored for the right leg."""
-    length = m["waist_height"] - m["ankle_height"]
-    inseam = m["crotch_height"] - m["ankle_height"]
-    crotch_y = inseam
-    hip_y = length - (m["waist_height"] - m["hip_height"])
-    quarter_hip = (m["hip_girth"] + ease.hip) / 4.0
-    quarter_waist = (m["waist_girth"] + ease.waist) / 4.0
-    ext = quarter_hip * (0.28 if front else 0.45)  # crotch extension
-    knee_half = max(m["thigh_girth"] * 0.32, 0.10) + (0.0 if front else 0.01)
-    hem_half = knee_half - 0.01
-    # the leg's crease at x = 0: outseam on +x, inseam and crotch on -x
-    out_hip = quarter_hip * 0.55
-    in_top = -(quarter_hip * 0.45)
+    back), outseam on +x, then mirrored for the right leg. The crease is x = 0."""
+    d = trouser_dims(m, ease)
+    length, crotch_y, hip_y = d["length"], d["inseam"], d["hip_y"]
+    knee_y = 0.5 * crotch_y + 0.06
+    sgn = -1.0 if front else 1.0
+    quarter_hip = d["seat"] / 4.0 + sgn * TROUSER_PANEL_OFFSET
+    quarter_waist = d["waist"] / 4.0 + sgn * TROUSER_PANEL_OFFSET
+    ext = d["seat"] * (TROUSER_FRONT_EXTENSION if front else TROUSER_BACK_EXTENSION)
+    knee_half = d["knee"] / 4.0 + sgn * TROUSER_PANEL_OFFSET
+    hem_half = d["hem"] / 4.0 + sgn * TROUSER_PANEL_OFFSET
+    side = 0.5 * (quarter_hip + ext)        # crease in the middle of the crotch line
+    in_top = side - quarter_hip             # centre front / back line at the hip
+    tip = in_top - ext                      # crotch point
+    waist_side = in_top + 0.01 + quarter_waist
     edges = [
         line("hem", (-hem_half, 0.0), (hem_half, 0.0)),
-        bezier("outseam", (hem_half, 0.0), (knee_half, 0.45 * crotch_y), (out_hip + 0.01, hip_y - 0.08), (in_top + quarter_waist + 0.01, length)),
-        line("waist", (in_top + quarter_waist + 0.01, length), (in_top + 0.01, length)),
-        bezier("crotch", (in_top + 0.01, length), (in_top, hip_y - 0.02), (in_top - 0.3 * ext, crotch_y + 0.02), (in_top - ext, crotch_y)),
-        bezier("inseam", (in_top - ext, crotch_y), (-knee_half - 0.02, 0.6 * crotch_y), (-knee_half, 0.4 * crotch_y), (-hem_half, 0.0)),
+        line("outseam_shin", (hem_half, 0.0), (knee_half, knee_y)),
+        bezier("outseam", (knee_half, knee_y), (knee_half + 0.25 * (side - knee_half), knee_y + 0.4 * (hip_y - knee_y)),
+               (side, hip_y - 0.25 * (hip_y - knee_y)), (side, hip_y)),
+        bezier("outseam_hip", (side, hip_y), (side, hip_y + 0.4 * (length - hip_y)),
+               (waist_side + 0.2 * (side - waist_side), length - 0.25 * (length - hip_y)), (waist_side, length)),
+        line("waist", (waist_side, length), (in_top + 0.01, length)),
+        bezier("crotch", (in_top + 0.01, length), (in_top, hip_y - 0.02), (in_top - 0.3 * ext, crotch_y + 0.02), (tip, crotch_y)),
+        bezier("inseam", (tip, crotch_y), (tip + 0.45 * (-knee_half - tip), crotch_y - 0.25 * (crotch_y - knee_y)),
+               (-knee_half, knee_y + 0.45 * (crotch_y - knee_y)), (-knee_half, knee_y)),
+        line("inseam_shin", (-knee_half, knee_y), (-hem_half, 0.0)),
     ]
     if limb == "R":
         edges = mirror_edges(edges)
-    side = "front" if front else "back"
+    side_name = "front" if front else "back"
     if not front:  # back panels are seen from behind: the left leg lies on the panel's -x
         edges = mirror_edges(edges)
-    return Panel(name, edges, (0.0, 1.0), {"part": "leg", "limb": limb, "side": side, "top_z": m["waist_height"]})
+    return Panel(name, edges, (0.0, 1.0), {"part": "leg", "limb": limb, "side": side_name, "top_z": m["waist_height"],
+                                            "crotch_y": crotch_y})
 
 
 def draft_trousers(m: dict, ease: Ease) -> Pattern:
     panels = [trouser_leg(f"{s}_{l}", m, ease, s == "front", l) for s in ("front", "back") for l in ("L", "R")]
-    seams = [
-        Seam(("front_L", "outseam"), ("back_L", "outseam"), reverse=True),
-        Seam(("front_R", "outseam"), ("back_R", "outseam"), reverse=True),
-        Seam(("front_L", "inseam"), ("back_L", "inseam"), reverse=True),
-        Seam(("front_R", "inseam"), ("back_R", "inseam"), reverse=True),
+    seams = [Seam((f"front_{l}", e), (f"back_{l}", e), reverse=True)
+             for l in ("L", "R") for e in ("outseam_shin", "outseam", "outseam_hip", "inseam", "inseam_shin")]
+    seams += [
         Seam(("front_L", "crotch"), ("front_R", "crotch"), reverse=True),
         Seam(("back_L", "crotch"), ("back_R", "crotch"), reverse=True),
     ]

@@ -38,7 +38,7 @@ from tryon.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 
-DRESS_VERSION = 2
+DRESS_VERSION = 15
 
 
 # --------------------------------------------------------------------------- tubes
@@ -75,9 +75,14 @@ class TorsoTube:
 
 
 class LegTube:
+    """Elliptic cross-sections around one leg every centimetre of height: centre (cx, cy)
+    and half axes (rx, ry), outside the skin. Below the ankle the foot would widen the
+    section, so the lower shin's section continues down to the floor; `z_below` walks
+    down the leg's (tilted) centre line by arc length."""
+
     def __init__(self, body: BodyPose, limb: int, clearance: float, step: float = 0.01):
         v = body.vertices[body.part == limb]
-        self.z = np.arange(0.0, v[:, 2].max() + step, step)
+        self.z = np.arange(0.0, body.vertices[:, 2].max() + step, step)
         cx, cy, rx, ry = (np.zeros(len(self.z)) for _ in range(4))
         for k, z in enumerate(self.z):
             sel = v[np.abs(v[:, 2] - z) < 0.6 * step + 0.01]
@@ -89,11 +94,74 @@ class LegTube:
         for a in (cx, cy, rx, ry):
             good = np.isfinite(a)
             a[~good] = np.interp(self.z[~good], self.z[good], a[good])
+        kernel = np.ones(5) / 5.0  # a 5 cm running mean: single slices are noisy (hands, folds)
+        for a in (cx, cy, rx, ry):
+            a[:] = np.convolve(np.pad(a, 2, mode="edge"), kernel, mode="valid")
+        foot = body.heads.get("foot." + ("L" if limb == 3 else "R"))
+        if foot is not None:
+            low = self.z < foot[2] + 0.03
+            k = int(np.searchsorted(self.z, foot[2] + 0.03))
+            k = min(k, len(self.z) - 1)
+            for a in (cx, cy, rx, ry):
+                a[low] = a[k]
         self.cx, self.cy = cx, cy
         self.rx, self.ry = 1.1 * rx + clearance, 1.1 * ry + clearance
+        # arc length along the bones (hip joint, knee, ankle; straight on to the floor)
+        side = "L" if limb == 3 else "R"
+        joints = [body.heads.get(f"{b}.{side}") for b in ("upperleg01", "lowerleg01", "foot")]
+        if all(j is not None for j in joints):
+            j = np.array(joints[::-1])  # ankle, knee, hip: increasing height
+            knots_z = np.concatenate([[0.0], j[:, 2], [self.z[-1] + 1.0]])
+            seg = np.linalg.norm(np.diff(j, axis=0), axis=1) / np.maximum(np.diff(j[:, 2]), 1e-6)  # length per height
+            slope = np.concatenate([[seg[0]], seg, [1.0]])
+            knots_s = np.concatenate([[0.0], np.cumsum(slope * np.diff(knots_z))])
+            self.s = np.interp(self.z, knots_z, knots_s)
+        else:
+            self.s = self.z.copy()
 
     def at(self, z: np.ndarray, what: str) -> np.ndarray:
         return np.interp(z, self.z, getattr(self, what))
+
+    @classmethod
+    def symmetric_pair(cls, body: BodyPose, clearance: float) -> dict[str, "LegTube"]:
+        """Left and right leg tubes made mirror images of each other (their mean), so
+        that the two legs' panels meet exactly on the midline at the crotch seams."""
+        left, right = cls(body, 3, clearance), cls(body, 4, clearance)
+        for what, sign in (("cx", -1.0), ("cy", 1.0), ("rx", 1.0), ("ry", 1.0), ("s", 1.0)):
+            mean = 0.5 * (getattr(left, what) + sign * getattr(right, what))
+            setattr(left, what, mean)
+            setattr(right, what, sign * mean)
+        return {"L": left, "R": right}
+
+    def z_below(self, z0: float, distance: np.ndarray) -> np.ndarray:
+        """Height reached walking `distance` down the centre line from height z0."""
+        s0 = float(np.interp(z0, self.z, self.s))
+        return np.interp(s0 - np.asarray(distance), self.s, self.z)
+
+
+class Midline:
+    """The body's profile in its mid-sagittal plane (|x| < 1.5 cm): the front-most and
+    back-most y of the torso at each height, NaN below the crotch."""
+
+    def __init__(self, body: BodyPose, step: float = 0.01):
+        v = body.vertices[(body.part == 0) & (np.abs(body.vertices[:, 0]) < 0.015)]
+        self.z = np.arange(0.0, body.vertices[:, 2].max() + step, step)
+        self.front = np.full(len(self.z), np.nan)
+        self.back = np.full(len(self.z), np.nan)
+        for k, z in enumerate(self.z):
+            sel = v[np.abs(v[:, 2] - z) < 0.6 * step + 0.01]
+            if len(sel):
+                self.front[k], self.back[k] = sel[:, 1].min(), sel[:, 1].max()
+        for a in (self.front, self.back):  # a 5 cm running mean where defined: single slices are noisy
+            good = np.isfinite(a)
+            num = np.convolve(np.where(good, a, 0.0), np.ones(5), mode="same")
+            den = np.convolve(good.astype(float), np.ones(5), mode="same")
+            a[good] = num[good] / den[good]
+
+    def at(self, z: np.ndarray, what: str) -> np.ndarray:
+        vals = getattr(self, what)
+        k = np.clip(np.round(np.asarray(z) / (self.z[1] - self.z[0])).astype(int), 0, len(self.z) - 1)
+        return vals[k]
 
 
 class ArmTube:
@@ -144,6 +212,18 @@ def _panel_half_width(panel: Panel) -> float:
     return max(abs(lo[0]), abs(hi[0]))
 
 
+def _row_half_width(panel: Panel, y: np.ndarray) -> np.ndarray:
+    """Half width of a symmetric torso panel at heights y, up to the top of its side seams
+    (the underarm; a skirt's waist), so that every row reaches the side of the body and the
+    side seams start closed however the waist is shaped; above the side seams (shoulders,
+    armholes) the width at their top."""
+    tops = [e.points[:, 1].max() for e in panel.edges if e.name.startswith("side")]
+    if not tops:
+        return np.full(len(y), _panel_half_width(panel))
+    lo, hi = _outline_span(panel, np.minimum(y, min(tops) - 1e-6))
+    return np.maximum(np.maximum(np.abs(lo), np.abs(hi)), 1e-6)
+
+
 def place_torso(points: np.ndarray, panel: Panel, tube: TorsoTube) -> np.ndarray:
     """Front/back panel onto the torso tube. A bodice's top `over_shoulder` metres (its
     placement key) bend over the shoulders (the depth shrinks to the mid-plane), so front
@@ -160,7 +240,7 @@ def place_torso(points: np.ndarray, panel: Panel, tube: TorsoTube) -> np.ndarray
     front = panel.placement.get("side", "front") == "front"
     depth = tube.at(zq, "front" if front else "back")
     depth = depth * np.cos(0.5 * np.pi * lift)
-    frac = np.clip(points[:, 0] / _panel_half_width(panel), -1.0, 1.0)
+    frac = np.clip(points[:, 0] / _row_half_width(panel, points[:, 1]), -1.0, 1.0)
     x, d = _half_ellipse(tube.at(zq, "half"), depth, frac)
     if front:
         return np.stack([x, tube.at(zq, "yc") - d, z], 1)
@@ -171,10 +251,11 @@ def _outline_span(panel: Panel, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Leftmost and rightmost x of the panel outline at heights y."""
     p = panel.outline(80)
     q = np.roll(p, -1, axis=0)
+    y = np.clip(y, p[:, 1].min() + 1e-4, p[:, 1].max() - 1e-4)  # the top and bottom rows: just inside
     lo = np.full(len(y), np.inf)
     hi = np.full(len(y), -np.inf)
     for a, b in zip(p, q):
-        if a[1] == b[1]:
+        if abs(b[1] - a[1]) < 1e-9:  # horizontal (up to rounding): its ends are on the neighbours
             continue
         t = (y - a[1]) / (b[1] - a[1])
         ok = (t >= 0) & (t <= 1)
@@ -203,40 +284,93 @@ def place_sleeve(points: np.ndarray, panel: Panel, tube: ArmTube, limb: str) -> 
     return tube.J + np.outer(t, tube.A) + r[:, None] * (np.outer(np.cos(theta), tube.e_top) + np.outer(np.sin(theta), side))
 
 
-def place_leg(points: np.ndarray, panel: Panel, torso: TorsoTube, leg: LegTube, crotch_z: float) -> np.ndarray:
-    """Trouser panel: above the crotch a quarter of the torso tube (centre seam to side),
-    below it half of the leg tube (inseam to outseam)."""
+CROTCH_BLEND = 0.10  # m: below the crotch point the inseam moves from the midline to the leg's inner side
+LEG_GAP = 0.004      # m: each leg's cloth keeps this far from the midline, but at the crotch seams ...
+LEG_GAP_RAMP = 0.006  # m: ... reached this far from them, so the two legs never start in contact
+
+
+def _smoothstep(t: np.ndarray) -> np.ndarray:
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _crotch_point_x(panel: Panel) -> float:
+    """Panel x of a trouser panel's crotch point (the lower end of its crotch edge)."""
+    try:
+        pts = panel.edge("crotch").points
+    except TryonError:
+        return 0.0
+    return float(pts[np.argmin(pts[:, 1]), 0])
+
+
+def place_leg(points: np.ndarray, panel: Panel, torso: TorsoTube, leg: LegTube, midline: Midline,
+              clearance: float) -> np.ndarray:
+    """Trouser panel, one row of the panel (its inner edge to its outer edge) at a time,
+    wrapped half-way round an elliptic section from the inner side to the outer side:
+    below the crotch line the leg's section (rows spaced along the tilted leg, the
+    inseam on the inner side of the leg), above it the half of the torso's section on the
+    panel's side, reached through a blend over the lower part of the rise in which the
+    crotch seam follows the body's mid-sagittal profile (outside the skin) from the crotch
+    point up to the centre front / back. Every point of a left panel keeps x >= 0 and
+    every point of a right one x <= 0 (the crotch seams lie on x = 0, so all seams start
+    closed), and front panels stay in front of back panels (the y of the sections'
+    centres), so the start is free of crossings."""
     _, hi = panel.bounds()
-    z = float(panel.placement["top_z"]) - (hi[1] - points[:, 1])
-    lo_x, hi_x = _outline_span(panel, points[:, 1])
+    top_z = float(panel.placement["top_z"])
+    crotch_y = float(panel.placement.get("crotch_y", 0.45 * hi[1]))
+    zc = top_z - (hi[1] - crotch_y)  # the trouser's crotch point
+    py = points[:, 1]
+    z = np.where(py >= crotch_y, top_z - (hi[1] - py), leg.z_below(zc, np.maximum(crotch_y - py, 0.0)))
+    lo_x, hi_x = _outline_span(panel, py)
     limb = panel.placement["limb"]
     front = panel.placement["side"] == "front"
-    # fraction from the inner edge (centre / inseam) to the outer edge (side / outseam)
     outer_is_high = (limb == "L") == front
     f = (points[:, 0] - lo_x) / np.maximum(hi_x - lo_x, 1e-9)
     f = np.clip(f if outer_is_high else 1.0 - f, 0.0, 1.0)
+    band = 0.4 * (top_z - zc)
+    w = _smoothstep((z - zc) / band)
+    zl = np.minimum(z, zc)
+    # the leg's own section (its centre on the limb's side, x > 0 for both limbs here)
+    lcx = np.abs(leg.at(zl, "cx"))
+    c_x = (1 - w) * lcx
+    c_y = (1 - w) * leg.at(zl, "cy") + w * torso.at(z, "yc")
+    depth = torso.at(z, "front" if front else "back")
+    r_y = (1 - w) * leg.at(zl, "ry") + w * depth
+    x_side = (1 - w) * (lcx + leg.at(zl, "rx")) + w * torso.at(z, "half")
+    x_side = np.maximum(x_side, c_x + 0.02)
+    # the inner edge: the inner side of the leg below the crotch, the mid-sagittal profile above
+    prof = midline.at(z, "front" if front else "back")
+    ahead = (c_y - prof) if front else (prof - c_y)
+    reach = np.where(np.isfinite(prof), np.maximum(ahead, 0.0) + clearance, 0.0) * (z > zc)
+    # ... but bridging hollows (the buttocks' cleft), as cloth does: at least an ellipse's reach
+    reach = np.maximum(reach, r_y * np.sin(0.5 * np.pi * w))
+    # ... and at least as far from the crotch point as the crotch seam runs across the panel
+    # (the seam's flat lower part runs under the body towards the front / back)
+    inner_x = lo_x if outer_is_high else hi_x
+    reach = np.maximum(reach, np.abs(inner_x - _crotch_point_x(panel)) * (z > zc))
+    a0 = np.arcsin(np.clip(reach / np.maximum(r_y, 1e-6), 0.0, 1.0))
+    # the inner side of the leg's section, drawn to the midline towards the crotch point
+    below = _smoothstep((zc - z) / CROTCH_BLEND)
+    inner_leg = np.maximum(np.maximum(lcx - leg.at(zl, "rx"), 0.0) * below, LEG_GAP * _smoothstep((zc - z) / LEG_GAP_RAMP))
+    start_x = (1 - w) * inner_leg
+    r_in = np.maximum(c_x - start_x, 0.0) / np.maximum(np.cos(a0), 1e-3)
+    ang = a0 + (np.pi - a0) * f
+    cos = np.cos(ang)
+    x = np.where(cos > 0, c_x - r_in * cos, c_x - (x_side - c_x) * cos)
+    # away from the crotch seams (on the midline above the crotch point) each leg keeps its gap
+    from_seam = f * (hi_x - lo_x)
+    x = np.maximum(x, np.where(z > zc, LEG_GAP * np.clip(from_seam / LEG_GAP_RAMP, 0.0, 1.0), start_x))
+    y = c_y + (-1.0 if front else 1.0) * r_y * np.sin(ang)
     sign_x = 1.0 if limb == "L" else -1.0
-    sign_y = -1.0 if front else 1.0
-    out = np.zeros((len(points), 3))
-    above = z >= crotch_z
-    za = z[above]
-    x, d = _half_ellipse(torso.at(za, "half"), torso.at(za, "front" if front else "back"), f[above])
-    out[above] = np.stack([sign_x * x, torso.at(za, "yc") + sign_y * d, za], 1)
-    zb = z[~above]
-    # half of the leg ellipse from the inner side (angle pi/2 towards the body's centre) round to the outer side
-    ang = np.pi * f[~above]
-    cx, cy = leg.at(zb, "cx"), leg.at(zb, "cy")
-    rx, ry = leg.at(zb, "rx"), leg.at(zb, "ry")
-    out[~above] = np.stack([cx - sign_x * rx * np.cos(ang), cy + sign_y * ry * np.sin(ang), zb], 1)
-    return out
+    return np.stack([sign_x * x, y, z], 1)
 
 
 def place_pattern(mesh: GarmentMesh, body: BodyPose, clearance: float = 0.012) -> np.ndarray:
     """3D start positions [N,3] of every panel vertex around the body."""
     torso = TorsoTube(body, clearance)
     arms = {s: ArmTube(body, s, clearance) for s in ("L", "R")}
-    legs = {"L": LegTube(body, 3, clearance), "R": LegTube(body, 4, clearance)}
-    crotch_z = float(body.heads.get("crotch", np.array([0, 0, 0.8]))[2])
+    legs = LegTube.symmetric_pair(body, clearance)
+    midline = Midline(body)
     x = np.zeros((mesh.num_vertices, 3))
     for k, panel in enumerate(mesh.pattern.panels):
         sel = mesh.panel_of_vertex == k
@@ -247,7 +381,7 @@ def place_pattern(mesh: GarmentMesh, body: BodyPose, clearance: float = 0.012) -
         elif part == "arm":
             x[sel] = place_sleeve(pts, panel, arms[panel.placement["limb"]], panel.placement["limb"])
         elif part == "leg":
-            x[sel] = place_leg(pts, panel, torso, legs[panel.placement["limb"]], crotch_z)
+            x[sel] = place_leg(pts, panel, torso, legs[panel.placement["limb"]], midline, clearance)
         else:
             raise TryonError(f"panel {panel.name!r}: unknown placement part {part!r}; use torso, arm or leg")
     return x
@@ -338,25 +472,81 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
         bar.set_postfix(gap_mm=f"{gap * 1000:.1f}")
     bar.close()
     if gap > 0.01:
-        raise SimulationError(f"sewing {mesh.pattern.name}: seams still {gap * 100:.1f} cm apart after {steps} steps")
+        x = state.x.numpy()
+        g = np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1)
+        worst = np.argsort(-g)[:3]
+        names = [mesh.pattern.panels[k].name for k in mesh.panel_of_vertex[st[worst, 0]]]
+        where = "; ".join(f"{n} vertex {int(st[k, 0])} at ({', '.join(f'{100 * c:.1f}' for c in x[st[k, 0]])}) cm, "
+                          f"{100 * g[k]:.1f} cm from its partner" for n, k in zip(names, worst))
+        raise SimulationError(f"sewing {mesh.pattern.name}: seams still {gap * 100:.1f} cm apart after {steps} steps ({where})")
     return state.x.numpy(), {"sew_steps": steps, "sew_gap_start_m": gap0, "sew_gap_end_m": gap, "sew_s": time.perf_counter() - t0}
+
+
+SEAMS_CLOSED = 0.005  # m: a placement whose every stitch pair is this close is welded at once
+
+
+def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarray, body: BodyPose, fabric: Fabric,
+          name: str, dt: float = 0.01, max_steps: int = 40, rest_speed: float = 0.02) -> tuple[np.ndarray, dict]:
+    """Let a welded garment placed around the body relax from its placement strain: the
+    cloth simulator with the body as obstacle, self-collision on, gravity off and
+    still-air damping, until the fastest vertex is slower than `rest_speed` (at least 5
+    steps, at most `max_steps`)."""
+    from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.mesh import ClothMesh
+    from tryon.sim.model import ClothModel, CollisionSettings
+    from tryon.sim.obstacles import Obstacle
+
+    cloth = ClothMesh(torch.from_numpy(x), torch.from_numpy(uv), torch.from_numpy(faces), name=name,
+                      face_uv=torch.from_numpy(corner_uv))
+    model = ClothModel(cloth, fabric, gravity=(0.0, 0.0, 0.0), obstacles=[Obstacle("body", body.vertices, body.faces)],
+                       collision=CollisionSettings(thickness=0.003, self_collision=True, friction=0.0), air_damping=8.0)
+    solver = ImplicitEulerSolver(model)
+    state = model.initial_state()
+    t0 = time.perf_counter()
+    steps, speed = 0, float("inf")
+    while steps < max_steps and (steps < 5 or speed > rest_speed):
+        state, _ = solver.step(state, dt)
+        steps += 1
+        speed = float(np.linalg.norm(state.v.numpy(), axis=1).max())
+    return state.x.numpy(), {"relax_steps": steps, "relax_final_speed": speed, "sew_s": time.perf_counter() - t0}
 
 
 def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float = 0.012,
                   clearance: float = 0.012, progress: bool = True) -> DressedGarment:
-    """Triangulate, place, sew and weld a pattern around a posed body."""
+    """Triangulate, place, sew and weld a pattern around a posed body. A placement whose
+    seams all start closed (trousers) is welded first and then relaxed with self-collision
+    on, so the garment never passes through itself; otherwise the seams are sewn shut in
+    simulation (self-collision off, since stitched pairs start apart) and then welded.
+    The dressed garment's self-intersections (edge through triangle) are counted in its
+    stats: a drape cannot undo them."""
+    from tryon.sim import collision as col
+
     t0 = time.perf_counter()
     mesh = triangulate_pattern(pattern, edge_length)
     x = place_pattern(mesh, body, clearance)
-    x, pushed = push_outside(x, body, clearance)
-    x, stats = sew(mesh, x, body, fabric, progress=progress)
-    pos, faces, corner_uv, group = merge_stitched(mesh, x)
-    uv = np.zeros((len(pos), 2))
-    uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
+    st = mesh.stitches
+    gap0 = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) if len(st) else 0.0
+    if gap0 <= SEAMS_CLOSED:
+        pos, faces, corner_uv, group = merge_stitched(mesh, x)
+        pos, pushed = push_outside(pos, body, clearance)
+        uv = np.zeros((len(pos), 2))
+        uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
+        pos, stats = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name)
+        stats.update({"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0})
+    else:
+        x, pushed = push_outside(x, body, clearance)
+        x, stats = sew(mesh, x, body, fabric, progress=progress)
+        pos, faces, corner_uv, group = merge_stitched(mesh, x)
+        uv = np.zeros((len(pos), 2))
+        uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
     owner = mesh.panel_of_vertex[mesh.faces[:, 0]]
     counts = np.bincount(group, minlength=len(pos))
+    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
+    n_self, _ = col.count_intersections(pos, faces, e, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
     stats.update({"vertices": int(len(pos)), "faces": int(len(faces)), "pushed_out_at_start": pushed,
-                  "edge_length_m": edge_length, "dress_s": time.perf_counter() - t0})
+                  "self_intersections": int(n_self), "edge_length_m": edge_length, "dress_s": time.perf_counter() - t0})
+    if n_self:
+        log.warning("dressing %s: the sewn garment crosses itself at %d edge-triangle pairs", pattern.name, n_self)
     return DressedGarment(pos, faces, uv, corner_uv, owner, pattern, np.nonzero(counts > 1)[0], stats)
 
 

@@ -98,6 +98,7 @@ class ImplicitEulerSolver:
         self._last_dv: np.ndarray | None = None
         self.collisions = CollisionScene.of(faces, model.edges, self.mass, model.obstacles.faces, model.obstacles.edges,
                                             model.collision.thickness, self.pinned_mask, model.collision.self_collision)
+        self.last_collision: col.CollisionReport | None = None  # the latest response's report, for diagnoses
 
     # ------------------------------------------------------------------ public API
     def step(self, state: ClothState, dt: float, control: Control | None = None) -> tuple[ClothState, StepStats]:
@@ -242,6 +243,7 @@ class ImplicitEulerSolver:
         `allow_fallback`, rigid impact zones when those fail): (positions, ok, report).
         `trace`, when given, records the impact-zone projections (for `tryon.diff`)."""
         x_fixed, report = self.collision_response(x0, x1, ob0, ob1, trace=trace)
+        self.last_collision = report
         if report.success and np.all(np.isfinite(x_fixed)):
             return x_fixed, True, report
         if not allow_fallback:

@@ -1,0 +1,217 @@
+"""Garments end to end at a coarse edge length (every draft dressed, draped to rest and
+written out), the trouser draft's proportions and placement, the issue's trouser cases,
+and the drape's guards: a garment starting through itself or the body is refused, a drape
+stuck in the fail-safe stops with a diagnosis, and cloth flung implausibly fast is redone."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from tryon.body.fit import Measurements, fit_body
+from tryon.body.measure import drafting_measurements
+from tryon.body.pose import BodyPose, posed_body
+from tryon.drape import DrapeRequest, drape
+from tryon.drape import pipeline
+from tryon.drape.outputs import write_outputs
+from tryon.errors import SimulationError
+from tryon.fabric import load_fabric
+from tryon.garment.drafts import GARMENTS, Ease, draft, trouser_dims
+from tryon.garment.dress import SEAMS_CLOSED, DressedGarment, dress_pattern, place_pattern
+from tryon.garment.sizes import size_measurements
+from tryon.garment.triangulate import merge_stitched, triangulate_pattern
+from tryon.sim import collision as col
+
+COARSE = 0.03
+
+
+def _edges(faces):
+    return np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
+
+
+@pytest.fixture(scope="module")
+def fit_model():
+    m = size_measurements("M", "male")
+    fit = fit_body(Measurements(height_cm=m["height_cm"], gender="male", chest_cm=m["chest_cm"], waist_cm=m["waist_cm"],
+                                hip_cm=m["hip_cm"]))
+    meas = drafting_measurements(fit.shape)
+    return fit.shape, meas, posed_body(fit.shape, "a", meas["crotch_height"])
+
+
+def test_trouser_draft_has_standard_proportions(fit_model):
+    _, m, _ = fit_model
+    d = trouser_dims(m, Ease())
+    stature = m["stature"]
+    # inside leg to the ankle bone and body rise (crotch to natural waist) of a regular man
+    assert 0.40 * stature < d["inseam"] < 0.46 * stature, d["inseam"] / stature
+    assert 0.14 * stature < d["rise"] < 0.19 * stature, d["rise"] / stature
+    assert m["ankle_height"] < d["hem_z"] < m["ankle_height"] + 0.03
+    # a straight leg: knee about 0.47 and hem about 0.43 of the seat, narrower than the thigh with ease
+    seat = m["hip_girth"]
+    assert 0.42 * seat < d["knee"] < 0.52 * seat and 0.38 * seat < d["hem"] < 0.48 * seat
+    assert d["hem"] < d["knee"] < m["thigh_girth"] + 0.06
+    p = draft("trousers", m, size="M")
+    front, back = p.panel("front_L"), p.panel("back_L")
+    fw = np.ptp(front.outline()[:, 0])
+    bw = np.ptp(back.outline()[:, 0])
+    assert bw > fw + 0.03  # the back panel: wider seat and a longer crotch extension
+    hem = front.edge("hem").length() + back.edge("hem").length()
+    assert abs(hem - d["hem"]) < 1e-6
+
+
+def test_trousers_start_closed_and_uncrossed_and_dress_side_seams_start_closed(fit_model):
+    _, m, body = fit_model
+    p = draft("trousers", m, size="M")
+    mesh = triangulate_pattern(p, COARSE)
+    x = place_pattern(mesh, body)
+    gaps = np.linalg.norm(x[mesh.stitches[:, 0]] - x[mesh.stitches[:, 1]], axis=1)
+    assert gaps.max() < SEAMS_CLOSED
+    pos, faces, _, _ = merge_stitched(mesh, x)
+    assert col.count_intersections(pos, faces, _edges(faces), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+                                   np.zeros((0, 2), np.int64))[0] == 0
+    # the two legs meet only at the crotch seams, on the midline
+    for k, panel in enumerate(p.panels):
+        sign = 1.0 if panel.placement["limb"] == "L" else -1.0
+        assert (sign * x[mesh.panel_of_vertex == k, 0]).min() > -1e-9, panel.name
+    g = dress_pattern(p, body, load_fabric("gray-interlock"), edge_length=COARSE, progress=False)
+    assert g.stats["sew_steps"] == 0 and g.stats["relax_steps"] >= 5 and g.stats["self_intersections"] == 0
+    # a shaped dress: only the shoulder seams start open, the side seams (waist and hips) closed
+    dress = draft("dress", m, size="M")
+    mesh = triangulate_pattern(dress, COARSE)
+    x = place_pattern(mesh, body)
+    pairs = []
+    for seam in dress.seams:
+        if "side" in seam.a[1]:
+            va, vb = mesh.edge_vertices[seam.a], mesh.edge_vertices[seam.b]
+            pairs.append(np.stack([va, vb[::-1] if seam.reverse else vb], 1))
+    st = np.concatenate(pairs)
+    assert len(st) > 10 and np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max() < 0.005
+
+
+@pytest.mark.parametrize("garment,size", [("tshirt", "S"), ("longsleeve", "S"), ("skirt", "S"), ("trousers", "S"), ("dress", "S")])
+def test_every_garment_drapes_to_rest_and_is_written_out(garment, size, tmp_path):
+    req = DrapeRequest(Measurements(height_cm=165, weight_kg=60, gender="female"), garment=garment, size=size,
+                       fabric="gray-interlock", edge_length=COARSE)
+    result = drape(req, progress=False)
+    rep = write_outputs(result, tmp_path)
+    assert rep["penetration_pct"] == 0.0 and rep["self_intersections"] == 0 and rep["body_intersections"] == 0
+    assert rep["settled"] and rep["final_rest_speed"] < req.rest_speed, (rep["final_rest_speed"], rep["final_max_speed"])
+    assert rep["failsafe_steps"] == 0 and rep["speed_recoveries"] == []
+    assert 0.0 < rep["max_strain"] < 0.35 and rep["mean_strain"] < 0.08
+    for name in ("render_front.png", "render_side.png", "render_back.png", "fit_map.png", "pressure_map.png", "tryon.glb"):
+        assert (tmp_path / name).stat().st_size > 1000, name
+    assert json.loads((tmp_path / "report.json").read_text())["settled"]
+    if garment == "trousers":
+        pm = drafting_measurements(result.person.shape)
+        z = result.x[:, 2]
+        # ankle length: the hems end around the ankle, above the floor; the waist stays up
+        assert 0.02 < z.min() < pm["ankle_height"] + 0.05, (z.min(), pm["ankle_height"])
+        assert z.max() > pm["waist_height"] - 0.06, (z.max(), pm["waist_height"])
+
+
+@pytest.mark.parametrize("height,weight,size,fabric", [
+    (176, 75, "L", "11oz-black-denim"),
+    (180, 80, "L", "gray-interlock"),
+    (180, 80, "M", "11oz-black-denim"),
+    (172, 84, "M", "gray-interlock"),
+])
+def test_trousers_on_men_drape_to_rest(height, weight, size, fabric):
+    """The issue's cases (no progress, explosions, steps of a minute) at a coarse edge length."""
+    req = DrapeRequest(Measurements(height_cm=height, weight_kg=weight, gender="male"), garment="trousers", size=size,
+                       fabric=fabric, edge_length=COARSE)
+    result = drape(req, progress=False)
+    m = result.metrics
+    assert m["settled"] and m["penetration_pct"] == 0.0 and m["self_intersections"] == 0
+    assert m["failsafe_steps"] == 0 and m["speed_recoveries"] == [] and m["final_max_speed"] < 1.0
+    assert m["steps"] < int((req.morph_time + req.max_settle_time) / req.dt)
+    assert m["max_strain"] < 0.4
+
+
+# --------------------------------------------------------------------------- guards, on a small scene
+def _sphere(radius=0.1, centre=(0.0, 0.0, 1.0), n=16):
+    th, ph = np.meshgrid(np.linspace(0, np.pi, n + 1)[1:-1], np.linspace(0, 2 * np.pi, 2 * n, endpoint=False), indexing="ij")
+    v = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
+    v = np.vstack([[0, 0, 1], v, [0, 0, -1]]) * radius + np.asarray(centre)
+    rows, cols = n - 1, 2 * n
+    idx = lambda r, c: 1 + r * cols + (c % cols)  # noqa: E731
+    f = [[0, idx(0, c), idx(0, c + 1)] for c in range(cols)]
+    for r in range(rows - 1):
+        for c in range(cols):
+            f += [[idx(r, c), idx(r + 1, c), idx(r + 1, c + 1)], [idx(r, c), idx(r + 1, c + 1), idx(r, c + 1)]]
+    last = len(v) - 1
+    f += [[last, idx(rows - 1, c + 1), idx(rows - 1, c)] for c in range(cols)]
+    return BodyPose(v, np.array(f, np.int64), np.zeros(len(v), np.int64), {})
+
+
+def _patch(z, size=0.16, n=8):
+    g = np.linspace(-size / 2, size / 2, n)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    uv = np.stack([X.ravel() + size / 2, Y.ravel() + size / 2], 1)
+    x = np.stack([X.ravel(), Y.ravel(), np.full(X.size, z)], 1)
+    f = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            f += [[a, b, c], [a, c, d]]
+    faces = np.array(f, np.int64)
+    return DressedGarment(x, faces, uv, uv[faces], np.zeros(len(faces), np.int64), None, np.zeros(0, np.int64),
+                          {"source": "patch.obj"})
+
+
+def _request():
+    return DrapeRequest(Measurements(height_cm=170, weight_kg=65, gender="female"), garment="patch.obj", size=None,
+                        edge_length=0.02, morph_time=0.02, max_settle_time=0.08)
+
+
+def test_a_garment_starting_through_itself_is_refused_with_its_vertices():
+    body = _sphere()
+    g = _patch(1.2)
+    # a second sheet of the same garment stabbed through the first one
+    stab = _patch(1.2)
+    stab.vertices = stab.vertices[:, [2, 1, 0]] + np.array([-1.2, 0.0, 1.2])
+    n = len(g.vertices)
+    both = DressedGarment(np.vstack([g.vertices, stab.vertices]), np.vstack([g.faces, stab.faces + n]),
+                          np.vstack([g.uv, stab.uv]), np.vstack([g.corner_uv, stab.corner_uv]),
+                          np.zeros(2 * len(g.faces), np.int64), None, np.zeros(0, np.int64), {"source": "two.obj"})
+    with pytest.raises(SimulationError, match=r"starts crossing itself at [1-9]\d* edge-triangle pairs \(\d+ vertices, e\.g\. \d+ at"):
+        pipeline.simulate_drape(_request(), both, body, body, progress=False)
+
+
+def test_a_drape_stuck_in_the_fail_safe_stops_with_a_diagnosis(monkeypatch):
+    from tryon.sim.integrator import ImplicitEulerSolver, StepStats
+
+    def frozen(self, state, dt, control=None):  # every step ends in the rigid fail-safe, nothing moves
+        self.last_collision = col.CollisionReport(constraints=col.Contacts(
+            idx=np.array([[3, 4, 5, -1]]), w=np.array([[1.0, -0.5, -0.5, 0.0]]), n=np.array([[0.0, 0.0, 1.0]]),
+            kind=np.array([col.VF_OBSTACLE])), zones=1)
+        return type(state)(state.x, torch.zeros_like(state.v), state.t + dt), StepStats(substeps=3, fallback=True)
+
+    monkeypatch.setattr(ImplicitEulerSolver, "step", frozen)
+    body = _sphere()
+    with pytest.raises(SimulationError, match=rf"makes no progress.*{pipeline.FAILSAFE_STREAK} steps in a row.*1 impacts \(1 vf_obstacle\).*most involved: \d+ at"):
+        pipeline.simulate_drape(_request(), _patch(1.15), body, body, progress=False)
+
+
+def test_cloth_flung_implausibly_fast_is_redone_and_reported(monkeypatch):
+    from tryon.sim.integrator import ImplicitEulerSolver
+
+    real = ImplicitEulerSolver.step
+    calls = {"n": 0}
+
+    def flinging(self, state, dt, control=None):
+        out, st = real(self, state, dt, control)
+        calls["n"] += 1
+        if calls["n"] == 3:  # one step's response throws a vertex away at 80 m/s
+            v = out.v.clone()
+            v[7] = torch.tensor([80.0, 0.0, 0.0], dtype=v.dtype)
+            out = type(out)(out.x, v, out.t)
+        return out, st
+
+    monkeypatch.setattr(ImplicitEulerSolver, "step", flinging)
+    body = _sphere()
+    x, _, _, stats, _ = pipeline.simulate_drape(_request(), _patch(1.15), body, body, progress=False)
+    rec = stats["speed_recoveries"]
+    assert len(rec) == 1 and rec[0]["speed_m_s"] == 80.0 and rec[0]["vertices"][0] == 7
+    assert rec[0]["recovered_speed_m_s"] < pipeline.PLAUSIBLE_SPEED
+    assert np.isfinite(x).all() and np.abs(x[:, :2]).max() < 0.2  # nothing left flying
