@@ -10,6 +10,8 @@ from PIL import Image
 from tryon.cli import main
 from tryon.io.mesh_io import read_obj
 
+pytestmark = [pytest.mark.anny, pytest.mark.slow]
+
 COARSE = ["--edge-length", "0.03"]
 
 

@@ -18,10 +18,12 @@ from tryon.drape.outputs import write_outputs
 from tryon.errors import SimulationError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, Ease, draft, trouser_dims
-from tryon.garment.dress import SEAMS_CLOSED, DressedGarment, dress_pattern, place_pattern
+from tryon.drape.dress import SEAMS_CLOSED, DressedGarment, dress_pattern, place_pattern
 from tryon.garment.sizes import size_measurements
 from tryon.garment.triangulate import merge_stitched, triangulate_pattern
 from tryon.sim import collision as col
+
+pytestmark = [pytest.mark.anny, pytest.mark.slow]
 
 COARSE = 0.03
 

@@ -11,11 +11,13 @@ from tryon.body.pose import posed_body
 from tryon.drape.fit_metrics import penetration
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, draft
-from tryon.garment.dress import dress_pattern
+from tryon.drape.dress import dress_pattern
 from tryon.garment.pattern import Edge, Panel, Pattern, PatternError, Seam
 from tryon.garment.sizes import SIZES, size_chart, size_for_chest, size_measurements
 from tryon.garment.triangulate import merge_stitched, triangulate_pattern
 from tryon.errors import TryonError
+
+pytestmark = [pytest.mark.anny]
 
 # boundary loops a closed garment keeps open: its openings
 OPENINGS = {"tshirt": 4, "longsleeve": 4, "dress": 4, "skirt": 2, "trousers": 3}

@@ -48,7 +48,7 @@ DRAPE = {"height_cm": 172.0, "weight_kg": 70.0, "gender": "female", "garment": "
 
 def bench_drape_dir() -> Path:
     """A small t-shirt drape for the garment animation, made once and cached."""
-    from tryon.garment.dress import cache_dir
+    from tryon.drape.dress import cache_dir
 
     out = cache_dir() / "bench-parallel-drape"
     if not (out / "drape_state.npz").exists():

@@ -98,7 +98,7 @@ def _cmd_drape(args: argparse.Namespace) -> int:
                        edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time)
     req.validate()
     if req.garment_obj is not None:  # a malformed garment is reported before the body is fitted
-        from tryon.garment.obj_garment import garment_from_obj
+        from tryon.drape.obj_garment import garment_from_obj
 
         garment_from_obj(req.garment_obj)
     result = drape(req, progress=not args.quiet)

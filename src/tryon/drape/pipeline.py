@@ -35,7 +35,7 @@ from tryon.body.pose import BodyPose, posed_body
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, draft
-from tryon.garment.dress import DressedGarment, dress_cached
+from tryon.drape.dress import DressedGarment, cloth_on_body, dress_cached
 from tryon.garment.sizes import SIZES, size_measurements
 
 STATE_FILE = "drape_state.npz"
@@ -70,7 +70,7 @@ class DrapeRequest:
 
     @property
     def garment_obj(self) -> Path | None:
-        """The garment OBJ file when `garment` names one (tryon.garment.obj_garment)."""
+        """The garment OBJ file when `garment` names one (tryon.drape.obj_garment)."""
         return Path(self.garment) if self.garment.lower().endswith(".obj") else None
 
     def validate(self) -> None:
@@ -120,9 +120,9 @@ class SkinBinding:
     along with a changing body while loose cloth is left to physics."""
 
     def __init__(self, x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, near: float = 0.02, far: float = 0.08):
-        from tryon.sim.collision.intersections import _nearest
+        from tryon.sim.collision import nearest_surface_locations
 
-        dist, self.face, self.bary = _nearest(np.ascontiguousarray(x), body_vertices, body_faces)
+        dist, self.face, self.bary = nearest_surface_locations(x, body_vertices, body_faces)
         self.corners = body_faces[self.face]
         self.weight = np.clip((far - dist) / (far - near), 0.0, 1.0)
 
@@ -131,18 +131,6 @@ class SkinBinding:
 
     def motion(self, body_from: np.ndarray, body_to: np.ndarray) -> np.ndarray:
         return self.weight[:, None] * (self.points(body_to) - self.points(body_from))
-
-
-def keep_outside(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, gap: float) -> np.ndarray:
-    """Points closer to the skin than `gap` (or inside) moved out along the skin normal."""
-    from tryon.sim.collision import nearest_surface_points
-
-    d, q, n = nearest_surface_points(x, body_vertices, body_faces)
-    bad = d < gap
-    if bad.any():
-        x = x.copy()
-        x[bad] = q[bad] + gap * n[bad]
-    return x
 
 
 def _where(x: np.ndarray, verts: np.ndarray, limit: int = 5) -> str:
@@ -226,15 +214,19 @@ def waistband_pin(garment: DressedGarment, frames: np.ndarray, times: np.ndarray
 def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
+    from tryon.sim.collision import push_outside
     from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
-    from tryon.sim.model import ClothModel, CollisionSettings
+    from tryon.sim.loop import steps
+    from tryon.sim.model import Control
     from tryon.sim.obstacles import Motion, Obstacle
 
     fabric = load_fabric(request.fabric)
     frames, times = morph_keyframes(start.vertices, target.vertices, request.morph_time)
     body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
-    model = ClothModel(garment.cloth_mesh(), fabric, obstacles=[body], pins=waistband_pin(garment, frames, times, start.faces),
-                       collision=CollisionSettings(thickness=request.thickness, friction=request.morph_friction, self_friction=0.3))
+    model = cloth_on_body(garment.cloth_mesh(), fabric, body, request.thickness, friction=request.friction,
+                          pins=waistband_pin(garment, frames, times, start.faces))
+    # while the body morphs the cloth slides (as when putting it on), then it holds
+    morphing, holding = Control(friction=request.morph_friction), None
     # a failing step is split once, then its impact zones are made rigid: on a garment
     # far too small for the body, deeper splitting only repeats the same infeasible zones
     solver = ImplicitEulerSolver(model, StepOptions(max_substep_depth=DRAPE_SUBSTEP_DEPTH))
@@ -254,7 +246,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     drift = float("inf")
 
     def advance(s, dt):
-        s, st = solver.step(s, dt)
+        record = next(steps(solver, s, dt, control=morphing if s.t < request.morph_time else holding))
+        s, st = record.state, record.stats
         stats["substeps"] += st.substeps
         stats["retried_steps"] += int(st.retried)
         stats["failsafe_steps"] += int(st.fallback)
@@ -263,12 +256,10 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
         return s, st
 
     while state.t < t_end - 1e-9:
-        if state.t >= request.morph_time:
-            model.collision.friction = request.friction
-        else:  # the cloth near the skin is carried with the changing body, physics does the rest
+        if state.t < request.morph_time:  # the cloth near the skin is carried with the changing body, physics does the rest
             now = model.obstacles.vertices_at(state.t)
             carried = state.x.numpy() + binding.motion(model.obstacles.vertices_at(state.t - request.dt), now)
-            carried = keep_outside(carried, now, start.faces, request.thickness)
+            carried, _, _ = push_outside(carried, now, start.faces, request.thickness)
             state = type(state)(torch.from_numpy(carried), state.v, state.t)
         tic = time.perf_counter()
         before = state
@@ -335,7 +326,7 @@ def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
     target = posed_body(person.shape, "a", pm["crotch_height"])
     t2 = time.perf_counter()
     if request.garment_obj is not None:  # already around the person: nothing to morph
-        from tryon.garment.obj_garment import garment_from_obj
+        from tryon.drape.obj_garment import garment_from_obj
 
         start = target
         garment = garment_from_obj(request.garment_obj, target, clearance=request.thickness + 0.002)
@@ -376,10 +367,19 @@ def save_state(result: DrapeResult, path: Path) -> None:
 def load_state(path: Path) -> dict:
     if not path.exists():
         raise TryonError(f"{path.parent} holds no drape ({path.name} missing); run `tryon drape ... --out {path.parent}` first")
-    d = np.load(path, allow_pickle=False)
-    out = {k: d[k] for k in d.files}
-    for k in ("body_params", "request", "pattern"):
-        out[k] = json.loads(str(out[k]))
+    from tryon.io.npz import read_npz
+
+    out = read_npz(path, "drape state")
+    try:
+        for k in ("body_params", "request", "pattern"):
+            out[k] = json.loads(str(out[k]))
+        n, f = len(out["x"]), len(out["faces"])
+        ok = (out["x"].shape == (n, 3) and out["faces"].shape == (f, 3) and out["faces"].min() >= 0
+              and out["faces"].max() < n and out["corner_uv"].shape == (f, 3, 2) and np.isfinite(out["x"]).all())
+    except (KeyError, ValueError, TypeError) as exc:
+        raise TryonError(f"{path} is not a drape state ({exc}); run `tryon drape` again") from exc
+    if not ok:
+        raise TryonError(f"{path}: the garment arrays do not fit together; run `tryon drape` again")
     return out
 
 

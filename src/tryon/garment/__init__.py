@@ -1,5 +1,6 @@
 """Garments from sewing patterns: the pattern model, parametric drafts in standard and
-made-to-measure sizes, triangulation with matched seams, and dressing on a body."""
+made-to-measure sizes and triangulation with matched seams (dressing a body with them is
+the drape stage's: `tryon.drape.dress`)."""
 
 from tryon.garment.drafts import GARMENTS, Ease, draft
 from tryon.garment.pattern import Edge, Panel, Pattern, PatternError, Seam

@@ -27,6 +27,7 @@ from tryon.sim.collision.impact_zones import CollisionReport, resolve_collisions
 from tryon.sim.collision.intersections import (
     count_intersections,
     min_obstacle_distance,
+    nearest_surface_locations,
     nearest_surface_points,
     push_outside,
     signed_obstacle_distance,
@@ -50,6 +51,7 @@ __all__ = [
     "find_impacts",
     "find_proximities",
     "min_obstacle_distance",
+    "nearest_surface_locations",
     "nearest_surface_points",
     "push_outside",
     "overlapping_pairs",

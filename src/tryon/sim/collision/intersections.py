@@ -207,3 +207,12 @@ def push_outside(x: Any, surface_vertices: Any, surface_faces: Any, gap: float |
         if accept is None or accept(out):
             break
     return out, moved, g
+
+
+def nearest_surface_locations(x: Any, surface_vertices: Any, surface_faces: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every point: unsigned distance [N] to the surface, the nearest face [N] and the
+    barycentric coordinates [N,3] of the nearest point on it (to follow a deforming surface)."""
+    x = as_points(x, "points")
+    ob = as_points(surface_vertices, "surface positions")
+    faces = as_index(surface_faces, 3, "surface faces", len(ob))
+    return _nearest(x, ob, faces)

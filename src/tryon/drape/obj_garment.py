@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tryon.errors import InputFileError
-from tryon.garment.dress import DressedGarment, push_outside
+from tryon.drape.dress import DressedGarment, clear_of_skin
 from tryon.body.pose import BodyPose
 
 # median (3D edge length / material edge length) a garment at rest stays within
@@ -43,7 +43,7 @@ def garment_from_obj(path: str | Path, body: BodyPose | None = None, clearance: 
     uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
     stats = {"source": str(path), "vertices": int(len(x)), "faces": int(len(faces)), "pushed_out_at_start": 0}
     if body is not None:
-        x, stats["pushed_out_at_start"] = push_outside(x, body, clearance)
+        x, stats["pushed_out_at_start"] = clear_of_skin(x, body, clearance)
     return DressedGarment(x, faces, uv, corner_uv, np.zeros(len(faces), dtype=np.int64), None, np.zeros(0, np.int64), stats)
 
 

@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from tryon.body.pose import BodyPose
 from tryon.errors import SimulationError, TryonError
@@ -387,15 +386,32 @@ def place_pattern(mesh: GarmentMesh, body: BodyPose, clearance: float = 0.012) -
     return x
 
 
-def push_outside(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
-    """Move points closer to the skin than `clearance` (or inside) out along the normal."""
-    from tryon.sim.collision import nearest_surface_points
+def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
+    """Points closer to the skin than `clearance` (or inside) moved out along the skin's
+    normal (`tryon.sim.collision.push_outside`), and how many moved."""
+    from tryon.sim.collision import push_outside
 
-    d, q, n = nearest_surface_points(x, body.vertices, body.faces)
-    bad = d < clearance
-    x = x.copy()
-    x[bad] = q[bad] + clearance * n[bad]
-    return x, int(bad.sum())
+    out, moved, _ = push_outside(x, body.vertices, body.faces, clearance)
+    return out, int(moved.sum())
+
+
+DRESSING_THICKNESS = 0.003  # m: contact distance while dressing (the drape then uses the request's)
+STILL_AIR_DAMPING = 8.0  # 1/s: dressing moves cloth to its place without swinging
+
+
+def cloth_on_body(cloth, fabric: Fabric, body, thickness: float, friction: float = 0.0, self_collision: bool = True,
+                  self_friction: float = 0.3, still: bool = False, stitches: np.ndarray | None = None,
+                  stitch_stiffness: float = 0.0, pins: list | None = None):
+    """The `ClothModel` of a garment around a body obstacle, for dressing (`still`: no
+    gravity, still-air damping) and draping alike."""
+    from tryon.sim.model import ClothModel, CollisionSettings
+
+    return ClothModel(cloth, fabric, obstacles=[body], pins=pins or [],
+                      gravity=(0.0, 0.0, 0.0) if still else (0.0, 0.0, -9.8),
+                      collision=CollisionSettings(thickness=thickness, friction=friction, self_friction=self_friction,
+                                                  self_collision=self_collision),
+                      stitches=None if stitches is None else torch.from_numpy(stitches),
+                      stitch_stiffness=stitch_stiffness, air_damping=STILL_AIR_DAMPING if still else 0.0)
 
 
 # --------------------------------------------------------------------------- sewing
@@ -409,7 +425,7 @@ class DressedGarment:
     uv: np.ndarray
     corner_uv: np.ndarray
     face_panel: np.ndarray
-    pattern: Pattern | None      # None: imported from an OBJ (tryon.garment.obj_garment)
+    pattern: Pattern | None      # None: imported from an OBJ (tryon.drape.obj_garment)
     seam_vertices: np.ndarray
     stats: dict = field(default_factory=dict)
 
@@ -446,31 +462,37 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
     The stitch stiffness grows 3 % a step (up to `max_stiffness`), so the seams close
     gently first and then tightly against the cloth's own resistance."""
     from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
-    from tryon.sim.model import ClothModel, CollisionSettings
+    from tryon.sim.model import Control
     from tryon.sim.obstacles import Obstacle
 
     cloth = ClothMesh(torch.from_numpy(x0), torch.from_numpy(mesh.uv), torch.from_numpy(mesh.faces), name=mesh.pattern.name)
-    model = ClothModel(cloth, fabric, gravity=(0.0, 0.0, 0.0),
-                       obstacles=[Obstacle("body", body.vertices, body.faces)],
-                       collision=CollisionSettings(thickness=0.003, self_collision=False, friction=0.0),
-                       stitches=torch.from_numpy(mesh.stitches), stitch_stiffness=stiffness, air_damping=8.0)
-    solver = ImplicitEulerSolver(model)
-    state = model.initial_state()
+    model = cloth_on_body(cloth, fabric, Obstacle("body", body.vertices, body.faces), DRESSING_THICKNESS,
+                          self_collision=False, still=True, stitches=mesh.stitches, stitch_stiffness=stiffness)
     st = mesh.stitches
     gap0 = float(np.linalg.norm(x0[st[:, 0]] - x0[st[:, 1]], axis=1).max()) if len(st) else 0.0
-    gap, steps = gap0, 0
-    bar = tqdm(total=max_steps, desc="sewing", unit="step", disable=not progress, leave=False)
+    ramp = {"k": stiffness}
+
+    def tightening(step: int, t: float) -> Control:  # 3 % stiffer every step
+        k, ramp["k"] = ramp["k"], min(max_stiffness, ramp["k"] * 1.03)
+        return Control(stitch_stiffness=k)
+
+    seams = {"gap": gap0}
+
+    def closed(rec) -> bool:
+        x = rec.state.x.numpy()
+        seams["gap"] = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max())
+        return seams["gap"] <= tolerance
+
     t0 = time.perf_counter()
-    while steps < max_steps and gap > tolerance:
-        state, _ = solver.step(state, dt)
-        steps += 1
-        model.stitch_stiffness = min(max_stiffness, model.stitch_stiffness * 1.03)
-        x = state.x.numpy()
-        gap = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max())
-        bar.update(1)
-        bar.set_postfix(gap_mm=f"{gap * 1000:.1f}")
-    bar.close()
+    state = model.initial_state()
+    steps = 0
+    if gap0 > tolerance:
+        outcome = run(ImplicitEulerSolver(model), state, dt, until=max_steps, observers=[closed], control=tightening,
+                      progress="sewing" if progress else None)
+        state, steps = outcome.state, outcome.step
+    gap = seams["gap"]
     if gap > 0.01:
         x = state.x.numpy()
         g = np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1)
@@ -492,23 +514,24 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
     still-air damping, until the fastest vertex is slower than `rest_speed` (at least 5
     steps, at most `max_steps`)."""
     from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
-    from tryon.sim.model import ClothModel, CollisionSettings
     from tryon.sim.obstacles import Obstacle
 
     cloth = ClothMesh(torch.from_numpy(x), torch.from_numpy(uv), torch.from_numpy(faces), name=name,
                       face_uv=torch.from_numpy(corner_uv))
-    model = ClothModel(cloth, fabric, gravity=(0.0, 0.0, 0.0), obstacles=[Obstacle("body", body.vertices, body.faces)],
-                       collision=CollisionSettings(thickness=0.003, self_collision=True, friction=0.0), air_damping=8.0)
-    solver = ImplicitEulerSolver(model)
-    state = model.initial_state()
+    model = cloth_on_body(cloth, fabric, Obstacle("body", body.vertices, body.faces), DRESSING_THICKNESS,
+                          self_collision=True, still=True)
     t0 = time.perf_counter()
-    steps, speed = 0, float("inf")
-    while steps < max_steps and (steps < 5 or speed > rest_speed):
-        state, _ = solver.step(state, dt)
-        steps += 1
-        speed = float(np.linalg.norm(state.v.numpy(), axis=1).max())
-    return state.x.numpy(), {"relax_steps": steps, "relax_final_speed": speed, "sew_s": time.perf_counter() - t0}
+    speed = {"max": float("inf")}
+
+    def at_rest(rec) -> bool:
+        speed["max"] = float(np.linalg.norm(rec.state.v.numpy(), axis=1).max())
+        return rec.step >= 5 and speed["max"] <= rest_speed
+
+    outcome = run(ImplicitEulerSolver(model), model.initial_state(), dt, until=max_steps, observers=[at_rest])
+    return outcome.state.x.numpy(), {"relax_steps": outcome.step, "relax_final_speed": speed["max"],
+                                     "sew_s": time.perf_counter() - t0}
 
 
 def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float = 0.012,
@@ -528,13 +551,13 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     gap0 = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) if len(st) else 0.0
     if gap0 <= SEAMS_CLOSED:
         pos, faces, corner_uv, group = merge_stitched(mesh, x)
-        pos, pushed = push_outside(pos, body, clearance)
+        pos, pushed = clear_of_skin(pos, body, clearance)
         uv = np.zeros((len(pos), 2))
         uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
         pos, stats = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name)
         stats.update({"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0})
     else:
-        x, pushed = push_outside(x, body, clearance)
+        x, pushed = clear_of_skin(x, body, clearance)
         x, stats = sew(mesh, x, body, fabric, progress=progress)
         pos, faces, corner_uv, group = merge_stitched(mesh, x)
         uv = np.zeros((len(pos), 2))
