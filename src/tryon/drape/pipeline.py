@@ -44,9 +44,10 @@ DRAPE_SUBSTEP_DEPTH = 1
 # shape at well under 1 m/s. A vertex faster than this has been flung by a failed solve or
 # collision response: the step is redone from its start, its velocities dropped and dt halved.
 PLAUSIBLE_SPEED = 5.0  # m/s
-# The rigid fail-safe freezes the zones it cannot resolve; that many fail-safe steps in a
-# row means the drape cannot make progress (the garment is caught in itself or the body).
+# The rigid fail-safe, as a last resort, freezes the cloth where it was; that many frozen
+# fail-safe steps in a row mean the drape cannot make progress (caught in itself or the body).
 FAILSAFE_STREAK = 5
+FROZEN = 1e-5  # m: a step that moves no vertex farther than this has not moved the cloth
 # Static equilibrium is judged on the motion over this many steps (the mean velocity of
 # every vertex over that window): a vertex chattering in place against the skin (a hem
 # resting on the heel) does not move on, a garment still sliding or swinging does.
@@ -282,7 +283,10 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             record["recovered_speed_m_s"] = round(float(speeds.max()), 3)
             stats["speed_recoveries"].append(record)
             state = retry
-        streak = streak + 1 if st.fallback else 0
+        # a fail-safe step whose rigid zones ride along with the body still makes progress; one
+        # that leaves the cloth where it was (frozen) does not
+        moved = float(np.abs(state.x.numpy() - before.x.numpy()).max())
+        streak = streak + 1 if st.fallback and moved < FROZEN else 0
         if streak >= FAILSAFE_STREAK:
             raise SimulationError(
                 f"draping {garment.name} makes no progress: at t={state.t:.2f}s the collision response has failed "
