@@ -8,7 +8,7 @@ inverse problems built on it (docs/DIFF.md).
 * `tryon.diff.observed` / `tryon.diff.fit`: observed sequences and fabric estimation
   (`tryon fit-fabric`).
 * `tryon.diff.control`: motion control, cloth into a basket (`tryon control`).
-* `tryon.diff.bench`: `tryon bench grad`.
+* `tryon bench grad` (in `tryon.bench.grad`) measures the cost of differentiating.
 """
 
 from tryon.diff.control import BasketTask, run_control
