@@ -15,7 +15,7 @@ from tryon.errors import LimitError, SceneError, TryonError
 from tryon.io.json_safe import dumps_json, write_json
 from tryon.io.safe_yaml import load_yaml
 from tryon.limits import ALLOW_LARGE_ENV, LIMITS, check_limit, large_allowed
-from tryon.sim.scene import EXAMPLES, example_scene, example_spec, load_scene, parse_scene
+from tryon.sim.scene import EXAMPLES, example_spec, load_scene, parse_scene
 from tryon.sim.scene_schema import safe_name, scene_format_markdown, validate_scene_spec
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "SCENE_FORMAT.md"

@@ -1,6 +1,5 @@
 """Built-in scenes end to end: collision invariants, robustness, scene parsing errors."""
 
-import json
 
 import numpy as np
 import pytest
