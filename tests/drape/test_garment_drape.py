@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tryon.body.fit import Measurements, fit_body
+from tryon.body.fit import Measurements
 from tryon.body.measure import drafting_measurements
 from tryon.body.pose import BodyPose, posed_body
 from tryon.drape import DrapeRequest, drape
@@ -19,7 +19,6 @@ from tryon.errors import SimulationError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import Ease, draft, trouser_dims
 from tryon.drape.dress import SEAMS_CLOSED, DressedGarment, dress_pattern, place_pattern
-from tryon.garment.sizes import size_measurements
 from tryon.garment.triangulate import merge_stitched, triangulate_pattern
 from tryon.sim import collision as col
 
@@ -33,12 +32,9 @@ def _edges(faces):
 
 
 @pytest.fixture(scope="module")
-def fit_model():
-    m = size_measurements("M", "male")
-    fit = fit_body(Measurements(height_cm=m["height_cm"], gender="male", chest_cm=m["chest_cm"], waist_cm=m["waist_cm"],
-                                hip_cm=m["hip_cm"]))
-    meas = drafting_measurements(fit.shape)
-    return fit.shape, meas, posed_body(fit.shape, "a", meas["crotch_height"])
+def fit_model(size_m_man):
+    shape, meas = size_m_man
+    return shape, meas, posed_body(shape, "a", meas["crotch_height"])
 
 
 def test_trouser_draft_has_standard_proportions(fit_model):

@@ -5,8 +5,6 @@ import json
 import numpy as np
 import pytest
 
-from tryon.body.fit import Measurements, fit_body
-from tryon.body.measure import drafting_measurements
 from tryon.body.pose import posed_body
 from tryon.drape.fit_metrics import penetration
 from tryon.fabric import load_fabric
@@ -24,12 +22,8 @@ OPENINGS = {"tshirt": 4, "longsleeve": 4, "dress": 4, "skirt": 2, "trousers": 3}
 
 
 @pytest.fixture(scope="module")
-def model_body():
-    m = size_measurements("M", "male")
-    fit = fit_body(Measurements(height_cm=m["height_cm"], gender="male", chest_cm=m["chest_cm"], waist_cm=m["waist_cm"],
-                                hip_cm=m["hip_cm"]))
-    meas = drafting_measurements(fit.shape)
-    return fit.shape, meas
+def model_body(size_m_man):
+    return size_m_man
 
 
 def test_size_chart_is_ordered_and_cited():

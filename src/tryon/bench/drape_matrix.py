@@ -22,7 +22,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from tryon.io.atomic import atomic_write, claim_work_dir
 from tryon.io.json_safe import dumps_json
@@ -180,10 +179,3 @@ def picture_grid(records: list[dict], cell_root: Path, path: Path, tile: tuple[i
     with atomic_write(path, "wb") as fh:
         sheet.save(fh, format="PNG")
     return path
-
-
-def summary(records: list[dict]) -> dict:
-    walls = [r["wall_s"] for r in records if "error" not in r]
-    return {"cells": len(records), "passed": int(sum(r["passed"] for r in records)),
-            "median_wall_s": float(np.median(walls)) if walls else None,
-            "max_wall_s": float(np.max(walls)) if walls else None}

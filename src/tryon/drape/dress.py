@@ -514,7 +514,7 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
     still-air damping, until the fastest vertex is slower than `rest_speed` (at least 5
     steps, at most `max_steps`)."""
     from tryon.sim.integrator import ImplicitEulerSolver
-    from tryon.sim.loop import run
+    from tryon.sim.loop import SettleTest, run
     from tryon.sim.mesh import ClothMesh
     from tryon.sim.obstacles import Obstacle
 
@@ -523,14 +523,9 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
     model = cloth_on_body(cloth, fabric, Obstacle("body", body.vertices, body.faces), DRESSING_THICKNESS,
                           self_collision=True, still=True)
     t0 = time.perf_counter()
-    speed = {"max": float("inf")}
-
-    def at_rest(rec) -> bool:
-        speed["max"] = float(np.linalg.norm(rec.state.v.numpy(), axis=1).max())
-        return rec.step >= 5 and speed["max"] <= rest_speed
-
+    at_rest = SettleTest(rest_speed, after=5)
     outcome = run(ImplicitEulerSolver(model), model.initial_state(), dt, until=max_steps, observers=[at_rest])
-    return outcome.state.x.numpy(), {"relax_steps": outcome.step, "relax_final_speed": speed["max"],
+    return outcome.state.x.numpy(), {"relax_steps": outcome.step, "relax_final_speed": at_rest.speed,
                                      "sew_s": time.perf_counter() - t0}
 
 
@@ -543,6 +538,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     The dressed garment's self-intersections (edge through triangle) are counted in its
     stats: a drape cannot undo them."""
     from tryon.sim import collision as col
+    from tryon.sim.collision.geometry import mesh_edges
 
     t0 = time.perf_counter()
     mesh = triangulate_pattern(pattern, edge_length)
@@ -564,7 +560,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
         uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
     owner = mesh.panel_of_vertex[mesh.faces[:, 0]]
     counts = np.bincount(group, minlength=len(pos))
-    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
+    e = mesh_edges(faces)
     n_self, _ = col.count_intersections(pos, faces, e, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
     stats.update({"vertices": int(len(pos)), "faces": int(len(faces)), "pushed_out_at_start": pushed,
                   "self_intersections": int(n_self), "edge_length_m": edge_length, "dress_s": time.perf_counter() - t0})

@@ -146,9 +146,10 @@ def check_start(x: np.ndarray, faces: np.ndarray, body_vertices: np.ndarray, bod
     so it is refused here with the crossing vertices named. Coarse cloth edges through
     the skin (at the neck, say) are pushed out by the contact forces: their number is
     returned, for the report."""
+    from tryon.sim.collision.geometry import mesh_edges
     from tryon.sim.collision.intersections import edge_face_intersections
 
-    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1), axis=0)
+    e = mesh_edges(faces)
     own = edge_face_intersections(x, e, x, faces, True)
     if len(own):
         verts = np.unique(np.concatenate([e[own[:, 0]].ravel(), faces[own[:, 1]].ravel()]))
@@ -216,7 +217,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
     from tryon.sim.collision import push_outside
-    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
+    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions, StepStats
     from tryon.sim.loop import steps
     from tryon.sim.model import Control
     from tryon.sim.obstacles import Motion, Obstacle
@@ -235,8 +236,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
     t_end = request.morph_time + request.max_settle_time
     out_frames, out_times = [state.x.numpy().copy()], [0.0]
-    stats = {"steps": 0, "substeps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [],
-             "max_step_s": 0.0, "seconds": {"forces": 0.0, "solve": 0.0, "collision": 0.0}}
+    stats = {"steps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [], "max_step_s": 0.0}
+    totals = StepStats()
     stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
                                                 f"the dressed {garment.name}")
     n_steps = int(np.ceil(t_end / request.dt))
@@ -249,11 +250,9 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     def advance(s, dt):
         record = next(steps(solver, s, dt, control=morphing if s.t < request.morph_time else holding))
         s, st = record.state, record.stats
-        stats["substeps"] += st.substeps
+        totals.merge(st)
         stats["retried_steps"] += int(st.retried)
         stats["failsafe_steps"] += int(st.fallback)
-        for k, v in st.seconds.items():
-            stats["seconds"][k] += v
         return s, st
 
     while state.t < t_end - 1e-9:
@@ -309,6 +308,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     if out_times[-1] != state.t:
         out_frames.append(state.x.numpy().copy())
         out_times.append(state.t)
+    stats.update({"substeps": totals.substeps, "seconds": totals.seconds})
     stats.update({"simulated_s": state.t, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max()),
                   "final_rest_speed": drift})
     return state.x.numpy(), out_frames, out_times, stats, solver

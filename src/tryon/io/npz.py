@@ -34,6 +34,7 @@ def read_npz(path: str | Path, what: str, allow_large: bool | None = None) -> di
             return {key: data[key] for key in data.files}
     except InputFileError:
         raise
+    # zipfile signals an unsupported compression method with NotImplementedError
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, RuntimeError, NotImplementedError) as exc:
         raise InputFileError(f"{what} {path}: not a readable .npz archive ({exc})") from None
 

@@ -463,13 +463,16 @@ def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1
     faces, edges = mesh.faces.numpy(), mesh.edges.numpy()
     h = model.collision.thickness
 
+    verdict = {"clear": False}
+
     def clear(x: np.ndarray) -> bool:
         _, crossing = col.count_intersections(x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges,
                                               self_collision=False)
-        return crossing == 0
+        verdict["clear"] = crossing == 0
+        return verdict["clear"]
 
     x, _, _ = col.push_outside(mesh.x.numpy(), ob, model.obstacles.faces, [k * h for k in steps], accept=clear)
-    if clear(x):
+    if verdict["clear"]:  # the verdict on the gap push_outside settled on
         return ClothMesh(torch.from_numpy(x), mesh.uv, mesh.faces, mesh.name, face_uv=mesh.face_uv)
     raise SceneError(f"the coarse garment still cuts into the obstacles {steps[-1] * h * 100:.1f} cm off them; "
                      "use a smaller coarsening factor")

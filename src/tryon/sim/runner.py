@@ -113,7 +113,8 @@ def _summary(scene: Scene, steps: int, wall: float, totals: StepStats, retried: 
     }
 
 
-_TOTAL_FIELDS = ("substeps", "contacts", "impacts", "collision_iterations", "solver_iterations", "retried", "fallback")
+# the counters of StepStats (its `seconds` dict is saved on its own)
+_TOTAL_FIELDS = tuple(f.name for f in dataclasses.fields(StepStats) if f.name != "seconds")
 
 
 def _save_checkpoint(path: Path, scene: Scene, outcome: RunOutcome, frames: FrameRecorder,

@@ -50,9 +50,3 @@ class CollisionScene:
 
         return find_proximities(x, self.faces, self.edges, ob, self.ob_faces, self.ob_edges, self.thickness,
                                 self_collision=self.self_collision if self_collision is None else self_collision)
-
-    def intersections(self, x: np.ndarray, ob: np.ndarray) -> tuple[int, int]:
-        """(self, obstacle) intersecting edge-triangle pairs (`count_intersections`)."""
-        from tryon.sim.collision.intersections import count_intersections
-
-        return count_intersections(x, self.faces, self.edges, ob, self.ob_faces, self.ob_edges, self.self_collision)
