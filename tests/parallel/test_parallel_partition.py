@@ -107,6 +107,16 @@ def test_adaptive_partition_respects_coarse_steps_and_single_segments():
     assert AdaptivePartitioner(50, 1).done
 
 
+@pytest.mark.parametrize("fine_cost", [1.0, 0.5])
+def test_adaptive_partition_gives_every_worker_a_segment_when_the_coarse_run_is_not_cheaper(fine_cost):
+    """A measured K at or below 1 (a busy machine, a tiny scene) would put the balanced
+    cut at the end of the run; every segment still gets at least one coarse step."""
+    for N, p, m in [(30, 2, 1), (30, 2, 3), (100, 4, 4)]:
+        cuts = _drive(AdaptivePartitioner(N, p, multiple=m), 1.0, lambda pos: fine_cost, multiple=m)
+        assert len(cuts) == p + 1 and cuts[0] == 0 and cuts[-1] == N
+        assert all(b > a for a, b in zip(cuts, cuts[1:]))
+
+
 def test_next_balanced_cut_is_uniform_for_k_one_and_ends_the_last_segment():
     assert next_balanced_cut(10, 110, 4, 1.0) == pytest.approx(35.0)
     assert next_balanced_cut(10, 110, 1, 7.0) == 110

@@ -457,10 +457,12 @@ class DressedGarment:
 
 
 def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: float = 0.01, max_steps: int = 300,
-        tolerance: float = 0.001, stiffness: float = 40.0, max_stiffness: float = 2000.0, progress: bool = True) -> tuple[np.ndarray, dict]:
+        tolerance: float = 0.001, stiffness: float = 40.0, max_stiffness: float = 2000.0, max_gap: float = 0.01,
+        progress: bool = True) -> tuple[np.ndarray, dict]:
     """Pull the seams shut in simulation; returns panel-vertex positions [N,3] and stats.
     The stitch stiffness grows 3 % a step (up to `max_stiffness`), so the seams close
-    gently first and then tightly against the cloth's own resistance."""
+    gently first and then tightly against the cloth's own resistance. Seams that end
+    within `max_gap` are welded by the caller; a wider gap is an error."""
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
@@ -493,7 +495,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
                       progress="sewing" if progress else None)
         state, steps = outcome.state, outcome.step
     gap = seams["gap"]
-    if gap > 0.01:
+    if gap > max_gap:
         x = state.x.numpy()
         g = np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1)
         worst = np.argsort(-g)[:3]
@@ -554,7 +556,10 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
         stats.update({"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0})
     else:
         x, pushed = clear_of_skin(x, body, clearance)
-        x, stats = sew(mesh, x, body, fabric, progress=progress)
+        # a coarse mesh cannot follow the neck's curve everywhere: a neckline stitch can
+        # stay a few millimetres open against the skin; welding it moves each side by at
+        # most half of `max_gap`
+        x, stats = sew(mesh, x, body, fabric, max_gap=max(0.01, 0.5 * edge_length), progress=progress)
         pos, faces, corner_uv, group = merge_stitched(mesh, x)
         uv = np.zeros((len(pos), 2))
         uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)

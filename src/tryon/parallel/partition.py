@@ -127,9 +127,13 @@ class AdaptivePartitioner:
         return max(fine_s_per_step / coarse_s_per_step, 1.0 + 1e-6)
 
     def target(self, K: float) -> float:
-        """Where the open segment should end under the current K estimate."""
+        """Where the open segment should end under the current K estimate, leaving at
+        least one coarse step for each segment after it (a K near 1, measured on a busy
+        machine, would otherwise give the whole run to the open segment and leave
+        workers idle)."""
         parts_left = self.parts - (len(self.cuts) - 1)
-        return next_balanced_cut(self.cuts[-1], self.n_steps, parts_left, K)
+        latest = self.n_steps - (parts_left - 1) * self.multiple
+        return min(next_balanced_cut(self.cuts[-1], self.n_steps, parts_left, K), float(latest))
 
     def offer(self, position: int, coarse_s_per_step: float | None, fine_s_per_step: float | None) -> int | None:
         """The coarse run stands at fine step `position` (a whole coarse step). Returns the
