@@ -350,9 +350,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)
 
+    from tryon.cli.dataset import add_commands as add_dataset_commands
     from tryon.cli.inverse import add_commands as add_inverse_commands
 
     add_inverse_commands(sub)
+    add_dataset_commands(sub)
     return p
 
 

@@ -532,18 +532,22 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
 
 
 def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float = 0.012,
-                  clearance: float = 0.012, progress: bool = True) -> DressedGarment:
+                  clearance: float = 0.012, progress: bool = True, mesh: GarmentMesh | None = None) -> DressedGarment:
     """Triangulate, place, sew and weld a pattern around a posed body. A placement whose
     seams all start closed (trousers) is welded first and then relaxed with self-collision
     on, so the garment never passes through itself; otherwise the seams are sewn shut in
     simulation (self-collision off, since stitched pairs start apart) and then welded.
     The dressed garment's self-intersections (edge through triangle) are counted in its
-    stats: a drape cannot undo them."""
+    stats: a drape cannot undo them. `mesh` is the pattern's triangulation when the
+    caller has one (`transfer_mesh`: one topology for every size)."""
     from tryon.sim import collision as col
     from tryon.sim.collision.geometry import mesh_edges
 
     t0 = time.perf_counter()
-    mesh = triangulate_pattern(pattern, edge_length)
+    if mesh is None:
+        mesh = triangulate_pattern(pattern, edge_length)
+    elif mesh.pattern is not pattern:
+        raise TryonError(f"the mesh handed to dress {pattern.name} triangulates another pattern")
     x = place_pattern(mesh, body, clearance)
     st = mesh.stitches
     gap0 = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) if len(st) else 0.0
@@ -578,8 +582,10 @@ def cache_dir() -> Path:
     return Path(os.environ.get("TRYON_CACHE_DIR", str(Path.home() / ".cache" / "tryon"))) / "dressed"
 
 
-def cache_key(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float) -> str:
+def cache_key(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float, mesh: GarmentMesh | None = None) -> str:
     h = hashlib.sha256()
+    if mesh is not None:
+        h.update(np.round(mesh.points2d, 7).tobytes() + mesh.faces.tobytes())
     h.update(json.dumps(pattern.to_dict(), sort_keys=True).encode())
     h.update(np.round(body.vertices, 5).tobytes())
     h.update(json.dumps(fabric.parameters().tolist()).encode())
@@ -587,9 +593,10 @@ def cache_key(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: flo
     return h.hexdigest()[:24]
 
 
-def dress_cached(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float = 0.012, progress: bool = True) -> DressedGarment:
-    """`dress_pattern`, cached on disk per pattern, body, fabric and edge length."""
-    path = cache_dir() / f"{pattern.name}-{cache_key(pattern, body, fabric, edge_length)}.npz"
+def dress_cached(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: float = 0.012, progress: bool = True,
+                 mesh: GarmentMesh | None = None) -> DressedGarment:
+    """`dress_pattern`, cached on disk per pattern, body, fabric, edge length and mesh."""
+    path = cache_dir() / f"{pattern.name}-{cache_key(pattern, body, fabric, edge_length, mesh)}.npz"
     if path.exists():
         try:
             g = DressedGarment.load(path)
@@ -597,7 +604,7 @@ def dress_cached(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: 
             return g
         except (OSError, ValueError, KeyError) as exc:  # a damaged cache entry is rebuilt
             log.warning("ignoring unreadable dressing cache %s (%s)", path, exc)
-    g = dress_pattern(pattern, body, fabric, edge_length, progress=progress)
+    g = dress_pattern(pattern, body, fabric, edge_length, progress=progress, mesh=mesh)
     g.save(path)
     g.stats["cached"] = False
     return g

@@ -221,3 +221,52 @@ def remesh_pattern(pattern: Pattern, edge_length: float) -> PatternMesh:
     gm = triangulate_pattern(pattern, edge_length)
     _, faces, corner_uv, _ = merge_stitched(gm, np.zeros((gm.num_vertices, 3)))
     return PatternMesh(faces.astype(np.int64), corner_uv, gm.panel_of_vertex[gm.faces[:, 0]])
+
+
+def transfer_mesh(ref: GarmentMesh, pattern: Pattern) -> GarmentMesh:
+    """The triangles of `ref` (a triangulation of another size of the same draft) laid
+    on the panels of `pattern`: one garment topology for every size, so that a learned
+    model predicts the same vertices whatever the size.
+
+    Every outline vertex keeps its edge and its fraction of that edge's arc length (seam
+    partners stay partners); the inside follows by the harmonic extension of the
+    outline's displacement (uniform graph Laplacian per panel). Raises `MeshError` when
+    the patterns differ in panels or edges, or when a triangle would flip."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    names = [p.name for p in pattern.panels]
+    if names != ref.panel_names:
+        raise MeshError(f"cannot transfer the {ref.pattern.name} mesh: its panels {ref.panel_names} differ from {names}")
+    new2d = ref.points2d.copy()
+    uv = ref.uv.copy()
+    edges = np.unique(np.sort(np.concatenate([ref.faces[:, [0, 1]], ref.faces[:, [1, 2]], ref.faces[:, [2, 0]]]), 1), axis=0)
+    for k, panel in enumerate(pattern.panels):
+        own = ref.panel_of_vertex == k
+        on_outline = np.zeros(len(new2d), bool)
+        for e in panel.edges:
+            idx = ref.edge_vertices.get((panel.name, e.name))
+            if idx is None:
+                raise MeshError(f"cannot transfer the {ref.pattern.name} mesh: panel {panel.name} has no edge {e.name!r} there")
+            new2d[idx] = e.sample(len(idx) - 1)
+            on_outline[idx] = True
+        inside = np.nonzero(own & ~on_outline)[0]
+        if len(inside):
+            e = edges[own[edges[:, 0]] & own[edges[:, 1]]]
+            n = len(new2d)
+            adj = coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+            lap = (coo_matrix((np.asarray(adj.sum(1)).ravel(), (np.arange(n), np.arange(n))), shape=(n, n)) - adj).tocsr()
+            fixed = np.nonzero(own & on_outline)[0]
+            shift = new2d[fixed] - ref.points2d[fixed]
+            rhs = -(lap[inside][:, fixed] @ shift)
+            sol = spsolve(lap[inside][:, inside].tocsc(), rhs)
+            new2d[inside] = ref.points2d[inside] + np.asarray(sol).reshape(-1, 2)
+        g = np.asarray(panel.grain)
+        uv[own] = np.stack([new2d[own] @ g, new2d[own] @ np.array([-g[1], g[0]])], 1)
+    p = new2d[ref.faces]
+    area = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1])
+    if (area <= 0).any():
+        raise MeshError(f"transferring the {ref.pattern.name} mesh to {pattern.meta.get('size', 'another size')} flips "
+                        f"{int((area <= 0).sum())} triangles; triangulate that size on its own")
+    return GarmentMesh(pattern, new2d, uv, ref.faces.copy(), ref.panel_of_vertex.copy(), list(ref.panel_names),
+                       dict(ref.edge_vertices), ref.stitches.copy())

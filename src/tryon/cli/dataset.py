@@ -1,0 +1,48 @@
+"""`tryon dataset`: datasets for the learned systems (tryon.dataset)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def _cmd_dataset_drape(args: argparse.Namespace) -> int:
+    from tryon.dataset import BodyRanges, DrapeDatasetSpec, load_drape_dataset, make_drape_dataset
+    from tryon.io.atomic import check_output_dir
+
+    spec = DrapeDatasetSpec(garment=args.garment, sizes=tuple(args.sizes), count=args.count, fabric=args.fabric,
+                            edge_length=args.edge_length, seed=args.seed, shard_size=args.shard_size,
+                            ranges=BodyRanges(genders=tuple(args.genders), bmi=tuple(args.bmi)))
+    spec.validate()  # every argument is checked before the first body or drape
+    check_output_dir(args.out, force=args.force)
+    store, report = make_drape_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
+                                       force=args.force, progress=not args.quiet, limit=args.limit)
+    data = load_drape_dataset(store.folder)
+    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
+                      "wall_s": round(report.wall_s, 1), "samples_per_core_hour": round(report.samples_per_core_hour, 1),
+                      **data.summary()}, indent=1))
+    print(f"dataset: {store.folder} (manifest.json, shards/, references/)")
+    return 0
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register `tryon dataset ...` on the `tryon` parser."""
+    d = sub.add_parser("dataset", help="make datasets for the learned systems (resumable, Ray)")
+    kinds = d.add_subparsers(dest="kind", required=True)
+    p = kinds.add_parser("drape", help="a garment in several sizes draped on sampled bodies (what `tryon drape` gives)")
+    p.add_argument("--garment", default="tshirt", help="tshirt, longsleeve, skirt, trousers or dress")
+    p.add_argument("--sizes", nargs="+", default=["S", "M", "L"], help="standard sizes; every body is draped in each")
+    p.add_argument("--count", type=int, default=100, help="bodies (samples per size)")
+    p.add_argument("--fabric", default="gray-interlock", help="fabric preset")
+    p.add_argument("--edge-length", type=float, default=0.012, help="garment triangle edge length in metres")
+    p.add_argument("--genders", nargs="+", default=["female", "male"], choices=["female", "male"])
+    p.add_argument("--bmi", type=float, nargs=2, default=[17.0, 45.0], metavar=("LOW", "HIGH"), help="BMI range (uniform)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--shard-size", type=int, default=32, help="samples per shard file")
+    p.add_argument("--limit", type=int, help="make at most this many missing samples in this run (the rest on resume)")
+    p.add_argument("--out", required=True, help="dataset folder; an existing dataset with the same settings is resumed")
+    p.add_argument("--workers", type=int, default=1, help="Ray workers (1: in this process)")
+    p.add_argument("--ray-address", help="join a Ray cluster (host:port) instead of starting a local one")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    p.set_defaults(func=_cmd_dataset_drape)

@@ -1,0 +1,78 @@
+"""Making and reading drape datasets as a whole."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tryon import __version__
+from tryon.dataset import drapes
+from tryon.dataset.drapes import DrapeDatasetSpec, Reference, build_references, drape_unit
+from tryon.dataset.generate import RunReport, open_dataset, run_generator
+from tryon.dataset.store import DatasetError, Manifest, ShardStore
+from tryon.drape.dress import DressedGarment
+
+
+def make_drape_dataset(spec: DrapeDatasetSpec, out: str | Path, workers: int = 1, ray_address: str | None = None,
+                       force: bool = False, progress: bool = True, limit: int | None = None) -> tuple[ShardStore, RunReport]:
+    """Make (or resume) a drape dataset in `out`."""
+    store = open_dataset(out, spec.manifest(__version__), force=force)
+    report = run_generator(store, _prepare, drape_unit, workers=workers, ray_address=ray_address, progress=progress,
+                           limit=limit)
+    return store, report
+
+
+def _prepare(manifest: Manifest, folder: Path) -> dict:
+    return build_references(manifest, folder)
+
+
+@dataclass
+class DrapeDataset:
+    """A drape dataset in memory: one row per (body, size) sample."""
+
+    manifest: Manifest
+    arrays: dict[str, np.ndarray]
+    faces: np.ndarray                      # [F,3], shared by every sample
+    references: dict[tuple[str, str], DressedGarment]
+
+    def __len__(self) -> int:
+        return len(self.arrays["unit"])
+
+    def rows(self, split: str | None = None, ok_only: bool = True) -> np.ndarray:
+        keep = np.ones(len(self), bool)
+        if split is not None:
+            keep &= self.arrays["split"] == split
+        if ok_only:
+            keep &= self.arrays["ok"].astype(bool)
+        return np.nonzero(keep)[0]
+
+    def summary(self) -> dict:
+        a = self.arrays
+        ok = a["ok"].astype(bool)
+        return {"samples": len(self), "ok": int(ok.sum()), "settled": int((a["settled"].astype(bool) & ok).sum()),
+                "splits": {str(s): int((a["split"] == s).sum()) for s in np.unique(a["split"])},
+                "bmi": [float(a["bmi"].min()), float(a["bmi"].max())],
+                "height_cm": [float(a["height_cm"].min()), float(a["height_cm"].max())],
+                "mean_wall_s": float(a["wall_s"].mean()), "max_penetration_pct": float(np.nanmax(a["penetration_pct"])) if ok.any() else None}
+
+
+def load_drape_dataset(folder: str | Path) -> DrapeDataset:
+    folder = Path(folder)
+    manifest = Manifest.read(folder)
+    if manifest.kind != drapes.KIND:
+        raise DatasetError(f"{folder} holds a {manifest.kind!r} dataset, not drapes")
+    store = ShardStore(folder, manifest)
+    arrays = store.load()
+    refs = {}
+    for p in sorted((folder / "references").glob("*-*.npz")):
+        gender, size = p.stem.split("-", 1)
+        refs[(gender, size)] = DressedGarment.load(p)
+    if not refs:
+        raise DatasetError(f"{folder}/references holds no reference garments; the dataset is incomplete")
+    faces = next(iter(refs.values())).faces
+    return DrapeDataset(manifest, arrays, faces, refs)
+
+
+__all__ = ["make_drape_dataset", "load_drape_dataset", "DrapeDataset", "Reference"]
