@@ -55,6 +55,9 @@ class DrapeDatasetSpec:
     train_fraction: float = 0.8
     val_fraction: float = 0.1
     extrapolation_bmi: float = 40.0  # bodies at or above this BMI form the extrapolation split
+    # the (gender, size) whose triangulation every size shares: datasets with the same
+    # garment, edge length and topology have the same vertices and can be trained on together
+    topology: tuple[str, str] = ("female", "M")
 
     def validate(self) -> None:
         if self.garment not in GARMENTS:
@@ -67,6 +70,8 @@ class DrapeDatasetSpec:
             raise TryonError(f"--count {self.count}: give 1 to 1,000,000 bodies")
         if not 0.006 <= self.edge_length <= 0.05:
             raise TryonError(f"edge length {self.edge_length} m is outside 0.006-0.05 m")
+        if self.topology[0] not in GENDER_CODE or self.topology[1].upper() not in SIZES:
+            raise TryonError(f"topology {self.topology}: give a gender and a standard size, e.g. ('female', 'M')")
         if not 1 <= self.shard_size <= 4096:
             raise TryonError(f"shard size {self.shard_size} is outside 1-4096 samples")
         if not (0 < self.train_fraction and 0 <= self.val_fraction and self.train_fraction + self.val_fraction < 1):
@@ -76,6 +81,7 @@ class DrapeDatasetSpec:
     def manifest(self, software_version: str) -> Manifest:
         self.validate()
         spec = {"garment": self.garment, "sizes": list(self.sizes), "fabric": self.fabric,
+                "topology": {"gender": self.topology[0], "size": self.topology[1].upper()},
                 "edge_length": self.edge_length, "ranges": self.ranges.to_dict(),
                 "drape": {k: v for k, v in asdict(DrapeRequest(Measurements(height_cm=170, weight_kg=70))).items() if k not in
                           ("body", "garment", "size", "fabric", "edge_length")}}
@@ -126,9 +132,8 @@ def build_references(manifest: Manifest, folder: Path, progress: bool = True) ->
     index_path = folder / "references" / "references.json"
     known = json.loads(index_path.read_text()) if index_path.exists() else {}
     refs: dict[tuple[str, str], Reference] = {}
-    base = None
-    order = [(g, s) for g in ranges.genders for s in _middle_first(spec["sizes"])]
-    for gender, size in order:
+    base = _base_mesh(spec)
+    for gender, size in [(g, s) for g in ranges.genders for s in spec["sizes"]]:
         key = f"{gender}-{size}"
         path = reference_path(folder, gender, size)
         if key in known and path.exists():
@@ -136,15 +141,8 @@ def build_references(manifest: Manifest, folder: Path, progress: bool = True) ->
             continue
         if progress:
             print(f"reference drape: {spec['garment']} {size} on the {gender} fit model", flush=True)
-        req = DrapeRequest(Measurements(height_cm=170, weight_kg=70, gender=gender), garment=spec["garment"], size=size)
-        fit = fit_body(fit_model_measurements(req))
-        m = drafting_measurements(fit.shape)
-        pattern = draft(spec["garment"], m, size=size, meta={"gender": gender})
-        if base is None:
-            base = triangulate_pattern(pattern, spec["edge_length"])
-            mesh = base
-        else:
-            mesh = transfer_mesh(base, pattern)
+        fit, m, pattern = _size_pattern(spec["garment"], gender, size)
+        mesh = transfer_mesh(base, pattern)
         start = posed_body(fit.shape, "a", m["crotch_height"])
         garment = dress_cached(pattern, start, fabric, spec["edge_length"], progress=False, mesh=mesh)
         if garment.stats.get("self_intersections", 0):
@@ -163,10 +161,18 @@ def build_references(manifest: Manifest, folder: Path, progress: bool = True) ->
     return refs
 
 
-def _middle_first(sizes: list[str]) -> list[str]:
-    """The middle size first (the shared triangulation is made on it), then the rest."""
-    mid = sizes[len(sizes) // 2]
-    return [mid] + [s for s in sizes if s != mid]
+def _size_pattern(garment: str, gender: str, size: str):
+    """The fit model of a standard size, its drafting measurements and the garment's pattern."""
+    req = DrapeRequest(Measurements(height_cm=170, weight_kg=70, gender=gender), garment=garment, size=size)
+    fit = fit_body(fit_model_measurements(req))
+    m = drafting_measurements(fit.shape)
+    return fit, m, draft(garment, m, size=size, meta={"gender": gender})
+
+
+def _base_mesh(spec: dict):
+    """The triangulation every size shares: the topology size's own, at the edge length."""
+    _, _, pattern = _size_pattern(spec["garment"], spec["topology"]["gender"], spec["topology"]["size"])
+    return triangulate_pattern(pattern, spec["edge_length"])
 
 
 # ----------------------------------------------------------------------------- samples
