@@ -7,18 +7,17 @@ from pathlib import Path
 
 import numpy as np
 
-from tryon import __version__
 from tryon.dataset import drapes
 from tryon.dataset.drapes import DrapeDatasetSpec, Reference, build_references, drape_unit
 from tryon.dataset.generate import RunReport, open_dataset, run_generator
-from tryon.dataset.store import DatasetError, Manifest, ShardStore
+from tryon.dataset.store import DatasetError, Manifest, ShardStore, software_version
 from tryon.drape.dress import DressedGarment
 
 
 def make_drape_dataset(spec: DrapeDatasetSpec, out: str | Path, workers: int = 1, ray_address: str | None = None,
                        force: bool = False, progress: bool = True, limit: int | None = None) -> tuple[ShardStore, RunReport]:
     """Make (or resume) a drape dataset in `out`."""
-    store = open_dataset(out, spec.manifest(__version__), force=force)
+    store = open_dataset(out, spec.manifest(software_version()), force=force)
     report = run_generator(store, _prepare, drape_unit, workers=workers, ray_address=ray_address, progress=progress,
                            limit=limit)
     return store, report

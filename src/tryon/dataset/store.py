@@ -34,6 +34,20 @@ class DatasetError(TryonError):
     """A dataset folder is missing, damaged or made with other settings."""
 
 
+def software_version() -> str:
+    """tryon's version, with the commit when it runs from a git checkout (provenance)."""
+    import subprocess
+
+    from tryon import __version__
+
+    try:
+        commit = subprocess.run(["git", "-C", str(Path(__file__).parent), "rev-parse", "--short", "HEAD"],
+                                capture_output=True, text=True, timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return f"{__version__}+g{commit}" if commit else __version__
+
+
 @dataclass
 class Manifest:
     """Everything that determines a dataset's samples (so it can be made again), plus the

@@ -69,7 +69,7 @@ def report_dict(result) -> dict:
         "max_strain": result.metrics["max_strain"],
         "wall_s": result.timings["wall_s"],
         "timings": result.timings,
-        "settings": {"dt": req.dt, "morph_time": req.morph_time, "max_settle_time": req.max_settle_time,
+        "settings": {"dt": req.dt, "morph_time": result.metrics.get("morph_s", req.morph_time), "max_settle_time": req.max_settle_time,
                      "rest_speed": req.rest_speed, "thickness": req.thickness, "friction": req.friction},
     }
 

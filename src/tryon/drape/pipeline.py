@@ -4,7 +4,8 @@
 2. The size's fit model: Anny fitted to the size chart's girths and stature (or, made to
    measure, the person); the pattern is drafted on the fit model's measurements.
 3. Dress the pattern on the fit model in the A-pose (sewn in simulation; cached).
-4. Simulate: the body morphs from the fit model to the person over `morph_time`
+4. Simulate: the body morphs from the fit model to the person over `morph_time` (by
+   default long enough that no point of the body moves faster than `MORPH_SPEED`)
    (a key-framed collision obstacle); cloth near the skin is carried along with the
    body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
    the run continues until the cloth is at rest (static equilibrium: every vertex's mean
@@ -52,6 +53,23 @@ FROZEN = 1e-5  # m: a step that moves no vertex farther than this has not moved 
 # every vertex over that window): a vertex chattering in place against the skin (a hem
 # resting on the heel) does not move on, a garment still sliding or swinging does.
 REST_WINDOW = 4
+# The body changes from the fit model to the person no faster than this (m/s): a faster
+# morph pinches cloth between arm and torso and flings it (a thin man in a size S fit
+# model's T-shirt: 9 cm of change in 0.4 s flung the sleeves; in 0.6 s it drapes).
+MORPH_SPEED = 0.1
+MIN_MORPH_TIME, MAX_MORPH_TIME = 0.4, 2.0  # s
+# Still-air damping (1/s) while the garment settles after the morph: a skirt's or a
+# dress's hem would otherwise swing on for seconds around the equilibrium it has reached.
+SETTLE_AIR_DAMPING = 4.0
+
+
+def morph_duration(start: np.ndarray, target: np.ndarray, requested: float | None = None) -> float:
+    """The morph's duration: `requested`, or the largest vertex displacement over
+    `MORPH_SPEED`, within MIN_MORPH_TIME..MAX_MORPH_TIME."""
+    if requested is not None:
+        return float(requested)
+    largest = float(np.linalg.norm(np.asarray(target) - np.asarray(start), axis=1).max()) if len(start) else 0.0
+    return float(np.clip(largest / MORPH_SPEED, MIN_MORPH_TIME, MAX_MORPH_TIME))
 
 
 @dataclass
@@ -62,7 +80,7 @@ class DrapeRequest:
     fabric: str = "gray-interlock"
     edge_length: float = 0.012   # m
     dt: float = 0.01             # s
-    morph_time: float = 0.4      # s
+    morph_time: float | None = None  # s; None: the body's largest displacement / MORPH_SPEED, at least MIN_MORPH_TIME
     max_settle_time: float = 1.5  # s
     rest_speed: float = 0.02     # m/s
     thickness: float = 0.004     # m, contact distance kept from the skin
@@ -86,6 +104,8 @@ class DrapeRequest:
             raise TryonError(f"edge length {self.edge_length} m is outside 0.004-0.05 m")
         if not 0.001 <= self.dt <= 1 / 30:
             raise TryonError(f"time step {self.dt} s is outside 0.001-0.033 s")
+        if self.morph_time is not None and not 0.0 < self.morph_time <= 10.0:
+            raise TryonError(f"morph time {self.morph_time} s is outside 0-10 s")
         load_fabric(self.fabric)  # raises FabricError naming the presets
         self.body.validate()
 
@@ -223,18 +243,20 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     from tryon.sim.obstacles import Motion, Obstacle
 
     fabric = load_fabric(request.fabric)
-    frames, times = morph_keyframes(start.vertices, target.vertices, request.morph_time)
+    morph_time = morph_duration(start.vertices, target.vertices, request.morph_time)
+    frames, times = morph_keyframes(start.vertices, target.vertices, morph_time)
     body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
     model = cloth_on_body(garment.cloth_mesh(), fabric, body, request.thickness, friction=request.friction,
                           pins=waistband_pin(garment, frames, times, start.faces))
-    # while the body morphs the cloth slides (as when putting it on), then it holds
-    morphing, holding = Control(friction=request.morph_friction), None
+    # while the body morphs the cloth slides (as when putting it on), then it holds and
+    # settles in still air (a hem's swing dies out; the static equilibrium is the same)
+    morphing, holding = Control(friction=request.morph_friction), Control(air_damping=SETTLE_AIR_DAMPING)
     # a failing step is split once, then its impact zones are made rigid: on a garment
     # far too small for the body, deeper splitting only repeats the same infeasible zones
     solver = ImplicitEulerSolver(model, StepOptions(max_substep_depth=DRAPE_SUBSTEP_DEPTH))
     state = model.initial_state()
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
-    t_end = request.morph_time + request.max_settle_time
+    t_end = morph_time + request.max_settle_time
     out_frames, out_times = [state.x.numpy().copy()], [0.0]
     stats = {"steps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [], "max_step_s": 0.0}
     totals = StepStats()
@@ -248,7 +270,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     drift = float("inf")
 
     def advance(s, dt):
-        record = next(steps(solver, s, dt, control=morphing if s.t < request.morph_time else holding))
+        record = next(steps(solver, s, dt, control=morphing if s.t < morph_time else holding))
         s, st = record.state, record.stats
         totals.merge(st)
         stats["retried_steps"] += int(st.retried)
@@ -256,7 +278,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
         return s, st
 
     while state.t < t_end - 1e-9:
-        if state.t < request.morph_time:  # the cloth near the skin is carried with the changing body, physics does the rest
+        if state.t < morph_time:  # the cloth near the skin is carried with the changing body, physics does the rest
             now = model.obstacles.vertices_at(state.t)
             carried = state.x.numpy() + binding.motion(model.obstacles.vertices_at(state.t - request.dt), now)
             carried, _, _ = push_outside(carried, now, start.faces, request.thickness)
@@ -301,7 +323,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
         drift = float(np.linalg.norm(window[-1] - window[0], axis=1).max()) / (request.dt * (len(window) - 1)) \
             if len(window) == REST_WINDOW + 1 else float("inf")
         bar.set_postfix(speed=f"{speed:.3f}")
-        if state.t >= request.morph_time and drift < request.rest_speed and not st.fallback:
+        if state.t >= morph_time and drift < request.rest_speed and not st.fallback:
             settled = True
             break
     bar.close()
@@ -309,7 +331,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
         out_frames.append(state.x.numpy().copy())
         out_times.append(state.t)
     stats.update({"substeps": totals.substeps, "seconds": totals.seconds})
-    stats.update({"simulated_s": state.t, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max()),
+    stats.update({"simulated_s": state.t, "morph_s": morph_time, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max()),
                   "final_rest_speed": drift})
     return state.x.numpy(), out_frames, out_times, stats, solver
 

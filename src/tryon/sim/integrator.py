@@ -286,9 +286,10 @@ class ImplicitEulerSolver:
             self._add_stitches(x.numpy(), f, H, stitch_k)
         if m.damping > 0:
             D += m.damping * H
-        if m.air_damping > 0:
-            D[self.pattern.diag_block] += m.air_damping * self._mass_blocks
-            f -= m.air_damping * self.mass[:, None] * v.numpy()
+        air = m.air_damping if control is None or control.air_damping is None else control.air_damping
+        if air > 0:
+            D[self.pattern.diag_block] += air * self._mass_blocks
+            f -= air * self.mass[:, None] * v.numpy()
         return H, D, f
 
     def _add_stitches(self, x: np.ndarray, f: np.ndarray, H: np.ndarray, k: float) -> None:

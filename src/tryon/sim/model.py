@@ -64,13 +64,17 @@ class ClothState:
 class Control:
     """Per-step inputs: extra forces on vertices (N), a wind override (m/s), and overrides
     of settings that a process ramps during a run: the stitches' stiffness (N/m; sewing
-    pulls them tighter step by step) and the cloth-obstacle friction coefficient (a drape
-    lets the cloth slide while the body morphs). None keeps the model's value."""
+    pulls them tighter step by step), the cloth-obstacle friction coefficient (a drape
+    lets the cloth slide while the body morphs) and the still-air damping (1/s; a drape
+    settling towards its static equilibrium). None keeps the model's value. The
+    differentiable step (tryon.diff) takes forces and wind from a Control, not these
+    overrides."""
 
     external_force: torch.Tensor | None = None
     wind_velocity: torch.Tensor | None = None
     stitch_stiffness: float | None = None
     friction: float | None = None
+    air_damping: float | None = None
 
 
 class ClothModel:
