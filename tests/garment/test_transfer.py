@@ -55,3 +55,23 @@ def test_a_mesh_is_not_carried_to_another_garment(size_m_man):
     _, meas = size_m_man
     with pytest.raises(MeshError, match="panels"):
         transfer_mesh(triangulate_pattern(draft("tshirt", meas), 0.03), draft("skirt", meas))
+
+
+@pytest.mark.parametrize("gender", ["female", "male"])
+def test_tops_draft_in_every_size(gender):
+    """The short sleeve of a deep armhole (male XL, female XXL) widens until its cap
+    matches the armhole; before, these sizes could not be drafted at all."""
+    from tryon.body.fit import Measurements, fit_body
+    from tryon.body.measure import drafting_measurements
+    from tryon.garment.sizes import SIZES, size_measurements
+
+    for size in SIZES:
+        s = size_measurements(size, gender)
+        fit = fit_body(Measurements(height_cm=s["height_cm"], gender=gender, chest_cm=s["chest_cm"],
+                                    waist_cm=s["waist_cm"], hip_cm=s["hip_cm"]))
+        m = drafting_measurements(fit.shape)
+        for garment in ("tshirt", "longsleeve"):
+            p = draft(garment, m, size=size)
+            for seam in p.seams:
+                a, b = p.seam_edges(seam)
+                assert abs(a.length() - b.length()) < 0.005, (gender, size, garment, seam)

@@ -160,21 +160,34 @@ def _bodice_seams(with_waist: bool) -> list[Seam]:
 
 
 # --------------------------------------------------------------------------- sleeve
+def _cap_edge(width: float, length: float, h: float) -> Edge:
+    return bezier("cap_r", (width / 2, length - h), (width / 2 - 0.25 * width, length - h + 0.15 * h),
+                  (0.22 * width, length), (0.0, length))
+
+
+def _bisect(f, lo: float, hi: float, target: float) -> float:
+    """The x in [lo, hi] where the increasing f(x) reaches `target` (the nearer end if it does not)."""
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if f(mid) < target else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
 def sleeve_panel(name: str, limb: str, cap_half_length: float, width: float, hem_width: float, length: float) -> Panel:
     """Sleeve with a symmetric cap whose half-curves are `cap_half_length` long (to match
-    the armholes), bicep `width`, hem `hem_width`, total `length` (cap top to hem)."""
-    def cap_right(h: float) -> Edge:
-        return bezier("cap_r", (width / 2, length - h), (width / 2 - 0.25 * width, length - h + 0.15 * h),
-                      (0.22 * width, length), (0.0, length))
+    the armholes), bicep `width`, hem `hem_width`, total `length` (cap top to hem). The
+    cap height follows the armhole; where even the tallest cap the sleeve's length allows
+    is too short (a short sleeve on a deep armhole), the sleeve and its hem widen until the
+    cap matches."""
+    h_max = min(length - 0.03, 0.9 * cap_half_length)
+    if _cap_edge(width, length, h_max).length() < cap_half_length:
+        wider = _bisect(lambda w: _cap_edge(w, length, h_max).length(), width, 4.0 * cap_half_length, cap_half_length)
+        hem_width, width = hem_width + (wider - width), wider
+    h = _bisect(lambda x: _cap_edge(width, length, x).length(), 0.02, h_max, cap_half_length)
 
-    lo, hi = 0.02, min(length - 0.03, 0.9 * cap_half_length)
-    for _ in range(60):  # bisection on the cap height so the cap matches the armhole
-        h = 0.5 * (lo + hi)
-        if cap_right(h).length() < cap_half_length:
-            lo = h
-        else:
-            hi = h
-    h = 0.5 * (lo + hi)
+    def cap_right(h: float) -> Edge:
+        return _cap_edge(width, length, h)
+
     right = [line("hem_r", (0.0, 0.0), (hem_width / 2, 0.0)),
              line("underarm_r", (hem_width / 2, 0.0), (width / 2, length - h)),
              cap_right(h)]
