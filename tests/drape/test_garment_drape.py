@@ -191,6 +191,23 @@ def test_a_drape_stuck_in_the_fail_safe_stops_with_a_diagnosis(monkeypatch):
         pipeline.simulate_drape(_request(), _patch(1.15), body, body, progress=False)
 
 
+def test_a_drape_that_keeps_needing_the_fail_safe_stops_within_its_budget(monkeypatch):
+    from tryon.sim.integrator import ImplicitEulerSolver, StepStats
+
+    def crawling(self, state, dt, control=None):  # every step needs the fail-safe, the cloth creeps on
+        self.last_collision = col.CollisionReport(constraints=col.Contacts(
+            idx=np.array([[3, 4, 5, -1]]), w=np.array([[1.0, -0.5, -0.5, 0.0]]), n=np.array([[0.0, 0.0, 1.0]]),
+            kind=np.array([col.VF_OBSTACLE])), zones=1)
+        v = torch.zeros_like(state.v)
+        v[:, 2] = -0.01
+        return type(state)(state.x + dt * v, v, state.t + dt), StepStats(substeps=3, fallback=True)
+
+    monkeypatch.setattr(ImplicitEulerSolver, "step", crawling)
+    body = _sphere()
+    with pytest.raises(SimulationError, match=rf"makes no progress.*failed in {pipeline.MAX_FAILSAFE_STEPS} steps.*1 impacts"):
+        pipeline.simulate_drape(_request(), _patch(1.15), body, body, progress=False)
+
+
 def test_cloth_flung_implausibly_fast_is_redone_and_reported(monkeypatch):
     from tryon.sim.integrator import ImplicitEulerSolver
 

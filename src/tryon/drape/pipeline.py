@@ -12,8 +12,9 @@
    velocity over the last `REST_WINDOW` steps below `rest_speed`) or `max_settle_time`
    passes. The dressed garment must start free of self-crossings (`check_start`); a step that
    flings cloth faster than `PLAUSIBLE_SPEED` is redone from rest in halves (recorded in
-   `speed_recoveries`), and `FAILSAFE_STREAK` fail-safe steps in a row stop the drape
-   with a `SimulationError` naming the impacts and vertices it is stuck on.
+   `speed_recoveries`), and `FAILSAFE_STREAK` frozen fail-safe steps in a row, or
+   `MAX_FAILSAFE_STEPS` in all, stop the drape with a `SimulationError` naming the
+   impacts and vertices it is stuck on.
 5. Measure and write: meshes, GLB, renders, fit maps, report.json.
 """
 
@@ -49,6 +50,11 @@ PLAUSIBLE_SPEED = 5.0  # m/s
 # fail-safe steps in a row mean the drape cannot make progress (caught in itself or the body).
 FAILSAFE_STREAK = 5
 FROZEN = 1e-5  # m: a step that moves no vertex farther than this has not moved the cloth
+# Each fail-safe step costs tens of seconds (the impact zones grow before the rigid
+# fallback). A drape that keeps needing it is a garment the body cannot fill without
+# crushing it (a size S T-shirt on a 182 cm, BMI 39 man: 40-80 s per step, 13 minutes in
+# all, before this budget); it stops with a diagnosis instead of crawling on.
+MAX_FAILSAFE_STEPS = 6
 # Static equilibrium is judged on the motion over this many steps (the mean velocity of
 # every vertex over that window): a vertex chattering in place against the skin (a hem
 # resting on the heel) does not move on, a garment still sliding or swinging does.
@@ -312,6 +318,11 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             raise SimulationError(
                 f"draping {garment.name} makes no progress: at t={state.t:.2f}s the collision response has failed "
                 f"{streak} steps in a row and the rigid fail-safe froze the cloth; {stall_diagnosis(solver, state.x.numpy())}")
+        if stats["failsafe_steps"] >= MAX_FAILSAFE_STEPS:
+            raise SimulationError(
+                f"draping {garment.name} makes no progress: by t={state.t:.2f}s the collision response has failed in "
+                f"{stats['failsafe_steps']} steps and needed the rigid fail-safe (the body presses the cloth into itself; "
+                f"is size {request.size} far too small for this body?); {stall_diagnosis(solver, state.x.numpy())}")
         stats["steps"] += 1
         stats["max_step_s"] = max(stats["max_step_s"], time.perf_counter() - tic)
         bar.update(1)
