@@ -101,7 +101,14 @@ def _cmd_drape(args: argparse.Namespace) -> int:
         from tryon.drape.obj_garment import garment_from_obj
 
         garment_from_obj(req.garment_obj)
-    result = drape(req, progress=not args.quiet)
+    if args.method == "learned":
+        from tryon.learn.drape import learned_drape
+
+        result = learned_drape(req, args.model)
+    elif args.model:
+        raise TryonError("--model is the network of --method learned")
+    else:
+        result = drape(req, progress=not args.quiet)
     rep = write_outputs(result, out, force=args.force)
     a, b = rep["body"]["achieved"], rep["body"]["asked"]
     print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
@@ -300,6 +307,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--edge-length", type=float, default=0.012, help="garment triangle edge length in metres")
     d.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
     d.add_argument("--settle-time", type=float, default=1.5, help="longest simulated settling time after the morph (s)")
+    d.add_argument("--method", choices=["simulate", "learned"], default="simulate",
+                   help="simulate the drape, or predict it with the trained network (milliseconds; standard sizes it knows)")
+    d.add_argument("--model", help="a draping model file (tryon train drape) instead of the one shipped for the garment")
     d.add_argument("--out", default="out/drape", help="output directory")
     d.add_argument("--quiet", action="store_true")
     _force_arg(d)
@@ -352,9 +362,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     from tryon.cli.dataset import add_commands as add_dataset_commands
     from tryon.cli.inverse import add_commands as add_inverse_commands
+    from tryon.cli.train import add_commands as add_train_commands
 
     add_inverse_commands(sub)
     add_dataset_commands(sub)
+    add_train_commands(sub)
     return p
 
 

@@ -12,7 +12,8 @@ def _cmd_dataset_drape(args: argparse.Namespace) -> int:
 
     spec = DrapeDatasetSpec(garment=args.garment, sizes=tuple(args.sizes), count=args.count, fabric=args.fabric,
                             edge_length=args.edge_length, seed=args.seed, shard_size=args.shard_size,
-                            ranges=BodyRanges(genders=tuple(args.genders), bmi=tuple(args.bmi)))
+                            ranges=BodyRanges(genders=tuple(args.genders), bmi=tuple(args.bmi)),
+                            extrapolation_bmi=args.extrapolation_bmi)
     spec.validate()  # every argument is checked before the first body or drape
     check_output_dir(args.out, force=args.force)
     store, report = make_drape_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
@@ -37,6 +38,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--edge-length", type=float, default=0.012, help="garment triangle edge length in metres")
     p.add_argument("--genders", nargs="+", default=["female", "male"], choices=["female", "male"])
     p.add_argument("--bmi", type=float, nargs=2, default=[17.0, 45.0], metavar=("LOW", "HIGH"), help="BMI range (uniform)")
+    p.add_argument("--extrapolation-bmi", type=float, default=40.0,
+                   help="bodies at or above this BMI form the extrapolation split (held out of training)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--shard-size", type=int, default=32, help="samples per shard file")
     p.add_argument("--limit", type=int, help="make at most this many missing samples in this run (the rest on resume)")

@@ -1,0 +1,162 @@
+"""A trained draping model as one file: network weights, the garment hierarchy, the skin
+priors of every (gender, size), the body region and normalisation, and the model card.
+
+Stored as a compressed `.npz` (no pickle): `tryon drape --method learned` loads the
+shipped T-shirt model from `tryon/learn/models/`."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tryon.body.anny_model import ShapeParams
+from tryon.drape.dress import DressedGarment
+from tryon.errors import TryonError
+from tryon.garment.pattern import Pattern
+from tryon.io.atomic import atomic_write
+from tryon.learn.features import SkinPrior, a_posed_body, vertex_normals
+from tryon.learn.network import DrapeNet, NetConfig
+from tryon.learn.topology import GarmentHierarchy
+
+MODELS_DIR = Path(__file__).parent / "models"
+GENDER_CODE = {"male": 0, "female": 1}
+
+
+class ModelError(TryonError):
+    pass
+
+
+@dataclass
+class DrapeModel:
+    """Everything needed to predict a drape for a body, gender and size."""
+
+    garment: str
+    sizes: list[str]
+    config: NetConfig
+    hierarchy: GarmentHierarchy
+    priors: dict[tuple[str, str], SkinPrior]
+    region: np.ndarray          # body vertex ids the encoder reads
+    mean_region: np.ndarray     # [M,3] their mean position over the training bodies
+    faces: np.ndarray
+    garments: dict = field(default_factory=dict)  # (gender, size) -> the reference DressedGarment (rest shape, panels)
+    card: dict = field(default_factory=dict)
+    net: DrapeNet | None = None
+
+    def build_net(self) -> DrapeNet:
+        if self.net is None:
+            self.net = DrapeNet(self.config, self.hierarchy)
+        return self.net
+
+    # ------------------------------------------------------------------ inputs
+    def body_input(self, body_vertices: np.ndarray) -> np.ndarray:
+        """[M,6]: the region's positions and their displacement from the mean body (x10)."""
+        r = body_vertices[self.region]
+        return np.concatenate([r, 10.0 * (r - self.mean_region)], 1).astype(np.float32)
+
+    def size_onehot(self, size: str) -> np.ndarray:
+        if size not in self.sizes:
+            raise ModelError(f"the learned {self.garment} model knows sizes {', '.join(self.sizes)}, not {size!r}; "
+                             "use --method simulate for other sizes")
+        v = np.zeros(len(self.sizes), np.float32)
+        v[self.sizes.index(size)] = 1.0
+        return v
+
+    def reference_garment(self, gender: str, size: str) -> DressedGarment:
+        """The size's garment (rest shape, panels) with the reference drape's positions."""
+        self.size_onehot(size)
+        if (gender, size) not in self.garments:
+            raise ModelError(f"the learned {self.garment} model has no {gender} garment in size {size}")
+        return self.garments[(gender, size)]
+
+    def prior(self, gender: str, size: str, body_vertices: np.ndarray) -> np.ndarray:
+        if (gender, size) not in self.priors:
+            raise ModelError(f"the learned {self.garment} model has no reference for a {gender} body in size {size}")
+        return self.priors[(gender, size)].carry(body_vertices)
+
+    # ------------------------------------------------------------------ prediction
+    @torch.no_grad()
+    def predict_vertices(self, body_vertices: np.ndarray, gender: str, size: str) -> np.ndarray:
+        """The draped garment [N,3] on an A-posed Anny body (vertices [V,3])."""
+        onehot = torch.from_numpy(self.size_onehot(size))[None]
+        net = self.build_net().eval()
+        body = torch.from_numpy(self.body_input(body_vertices))[None]
+        prior = torch.from_numpy(self.prior(gender, size, body_vertices).astype(np.float32))[None]
+        out = net(body, torch.tensor([GENDER_CODE[gender]]), onehot, prior)
+        return out[0][0].double().numpy()
+
+    def predict(self, params: ShapeParams, gender: str, size: str) -> tuple[np.ndarray, "object"]:
+        """(garment vertices, the A-posed body) for Anny shape parameters."""
+        body = a_posed_body(params)
+        return self.predict_vertices(body.vertices, gender, size), body
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: str | Path) -> Path:
+        net = self.build_net()
+        arrays = {f"h_{k}": v for k, v in self.hierarchy.to_arrays().items()}
+        for (g, s), p in self.priors.items():
+            arrays.update(p.to_arrays(f"p_{g}_{s}_"))
+        for (g, s), ref in self.garments.items():
+            arrays.update({f"g_{g}_{s}_uv": ref.uv, f"g_{g}_{s}_corner_uv": ref.corner_uv, f"g_{g}_{s}_face_panel": ref.face_panel,
+                           f"g_{g}_{s}_seam_vertices": ref.seam_vertices,
+                           f"g_{g}_{s}_pattern": np.asarray(json.dumps(ref.pattern.to_dict()))})
+        for k, v in net.state_dict().items():
+            arrays[f"w_{k}"] = v.numpy().astype(np.float16 if v.dtype == torch.float32 and v.numel() > 4096 else v.numpy().dtype)
+        meta = {"garment": self.garment, "sizes": self.sizes, "config": self.config.to_dict(), "card": self.card,
+                "priors": [list(k) for k in self.priors], "format": 1}
+        arrays.update({"region": self.region.astype(np.int32), "mean_region": self.mean_region.astype(np.float32),
+                       "faces": self.faces.astype(np.int32), "meta": np.asarray(json.dumps(meta))})
+        with atomic_write(path, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "DrapeModel":
+        path = Path(path)
+        if not path.is_file():
+            raise ModelError(f"no draping model at {path}")
+        try:
+            a = dict(np.load(path, allow_pickle=False))
+            meta = json.loads(str(a["meta"]))
+        except (OSError, ValueError, KeyError) as exc:
+            raise ModelError(f"{path} is not a tryon draping model ({exc})") from exc
+        h = GarmentHierarchy.from_arrays({k[2:]: v for k, v in a.items() if k.startswith("h_")})
+        priors = {(g, s): SkinPrior.from_arrays(a, f"p_{g}_{s}_") for g, s in meta["priors"]}
+        faces = a["faces"].astype(np.int64)
+        garments = {}
+        for g, s in meta["priors"]:
+            if f"g_{g}_{s}_uv" in a:
+                garments[(g, s)] = DressedGarment(priors[(g, s)].x_ref, faces, a[f"g_{g}_{s}_uv"], a[f"g_{g}_{s}_corner_uv"],
+                                                  a[f"g_{g}_{s}_face_panel"], Pattern.from_dict(json.loads(str(a[f"g_{g}_{s}_pattern"]))),
+                                                  a[f"g_{g}_{s}_seam_vertices"], {"source": f"learned {meta['garment']} {s}"})
+        m = cls(meta["garment"], meta["sizes"], NetConfig(**meta["config"]), h, priors, a["region"].astype(np.int64),
+                a["mean_region"].astype(np.float64), faces, garments, meta["card"])
+        net = m.build_net()
+        state = {k[2:]: torch.from_numpy(np.asarray(v, np.float32) if v.dtype == np.float16 else v)
+                 for k, v in a.items() if k.startswith("w_")}
+        net.load_state_dict(state)
+        return m
+
+
+def shipped_model_path(garment: str) -> Path:
+    return MODELS_DIR / f"{garment}.npz"
+
+
+def load_shipped(garment: str = "tshirt") -> DrapeModel:
+    path = shipped_model_path(garment)
+    if not path.is_file():
+        known = sorted(p.stem for p in MODELS_DIR.glob("*.npz"))
+        raise ModelError(f"no learned model for {garment!r} ships with tryon (learned garments: {', '.join(known) or 'none'}); "
+                         "use --method simulate")
+    return DrapeModel.load(path)
+
+
+def timestamp() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
+__all__ = ["DrapeModel", "ModelError", "load_shipped", "shipped_model_path", "vertex_normals"]

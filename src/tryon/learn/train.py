@@ -1,0 +1,166 @@
+"""`tryon train drape`: train the draping network on a drape dataset.
+
+Fixed seed, progress bar, a checkpoint every epoch (resumed when the same command runs
+again), the best model on the validation split kept, and a model card with the data's
+manifest and the metrics on every split."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from tryon.dataset.loading import load_drape_dataset
+from tryon.errors import TryonError
+from tryon.io.atomic import atomic_write
+from tryon.learn.data import TrainingSet, model_parts, training_set
+from tryon.learn.losses import DrapeLoss, LossWeights
+from tryon.learn.model import DrapeModel, timestamp
+from tryon.learn.network import DrapeNet, NetConfig
+
+CHECKPOINT = "checkpoint.pt"
+
+
+@dataclass
+class TrainConfig:
+    epochs: int = 60
+    batch: int = 8
+    lr: float = 1e-3
+    seed: int = 0
+    weights: LossWeights = field(default_factory=LossWeights)
+    net: NetConfig = field(default_factory=NetConfig)
+
+    def to_dict(self) -> dict:
+        return {"epochs": self.epochs, "batch": self.batch, "lr": self.lr, "seed": self.seed,
+                "weights": self.weights.to_dict(), "net": self.net.to_dict()}
+
+
+def batch_tensors(ts: TrainingSet, idx: np.ndarray, model: DrapeModel) -> dict[str, torch.Tensor]:
+    body = ts.body[idx].astype(np.float64)
+    inp = np.concatenate([body, 10.0 * (body - model.mean_region[None])], 2).astype(np.float32)
+    onehot = np.eye(len(model.sizes), dtype=np.float32)[ts.size[idx]]
+    return {"body_in": torch.from_numpy(inp), "gender": torch.from_numpy(ts.gender[idx]), "size": torch.from_numpy(onehot),
+            "prior": torch.from_numpy(ts.prior[idx]), "truth": torch.from_numpy(ts.truth[idx]),
+            "body": torch.from_numpy(ts.body[idx]), "normals": torch.from_numpy(ts.normals[idx]),
+            "cand": torch.from_numpy(ts.cand[idx].astype(np.int64))}
+
+
+def predict_set(model: DrapeModel, ts: TrainingSet, batch: int = 16) -> np.ndarray:
+    net = model.build_net().eval()
+    out = []
+    with torch.no_grad():
+        for s in range(0, len(ts.rows), batch):
+            b = batch_tensors(ts, np.arange(s, min(s + batch, len(ts.rows))), model)
+            out.append(net(b["body_in"], b["gender"], b["size"], b["prior"])[0].numpy())
+    return np.concatenate(out) if out else np.zeros((0, model.hierarchy.n, 3), np.float32)
+
+
+def train_drape(data_dir: str | Path, out: str | Path, config: TrainConfig | None = None, progress: bool = True,
+                max_epochs_this_run: int | None = None, force: bool = False) -> DrapeModel:
+    """Train (or resume training) a draping model on the dataset in `data_dir`; the model
+    file is `out/model.npz`, its card `out/model_card.json`. A folder with a checkpoint
+    of the same settings and data resumes; any other folder tryon wrote is started over."""
+    from tryon.io.atomic import claim_work_dir, is_owned
+
+    config = config or TrainConfig()
+    out = Path(out)
+    claim_work_dir(out, resume=(out / CHECKPOINT).exists() and is_owned(out), force=force)
+    data_dir = Path(data_dir)
+    data = load_drape_dataset(data_dir)
+    if len(data.rows("train")) < 2:
+        raise TryonError(f"{data_dir} has {len(data.rows('train'))} good training samples; make more with tryon dataset drape")
+    hierarchy, priors, region = model_parts(data, data_dir, config.net.levels, config.net.eigen)
+    ts = training_set(data, priors, region, cache=out / "cache", progress=progress)
+    train, val = ts.subset(ts.split == "train"), ts.subset(ts.split == "val")
+    selected_on = "val"
+    if len(val.rows) == 0:  # a small dataset drew no validation body: select on the training error
+        val, selected_on = train, "train"
+    config.net.sizes = len(data.manifest.spec["sizes"])
+    model = DrapeModel(data.manifest.spec["garment"], list(data.manifest.spec["sizes"]), config.net, hierarchy, priors,
+                       region, train.body.astype(np.float64).mean(0), data.faces, dict(data.references))
+    torch.manual_seed(config.seed)  # here: preparing the samples may draw from torch's generator
+    net = model.build_net()
+    loss_fn = DrapeLoss(hierarchy, config.weights)
+    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs, eta_min=config.lr * 0.02)
+    state = {"epoch": 0, "best_val": float("inf"), "history": []}
+    ckpt = out / CHECKPOINT
+    if ckpt.exists():
+        saved = torch.load(ckpt, weights_only=True)
+        if saved["config"] != json.dumps(config.to_dict(), sort_keys=True) or saved["data"] != len(ts.rows):
+            raise TryonError(f"{ckpt} was made with other settings or data; use another --out or remove it")
+        net.load_state_dict(saved["net"])
+        opt.load_state_dict(saved["opt"])
+        sched.load_state_dict(saved["sched"])
+        state = json.loads(saved["state"])
+        torch.set_rng_state(saved["rng"])
+    epochs_run = 0
+    t0 = time.perf_counter()
+    while state["epoch"] < config.epochs and (max_epochs_this_run is None or epochs_run < max_epochs_this_run):
+        net.train()
+        order = np.random.default_rng([config.seed, state["epoch"]]).permutation(len(train.rows))  # resumes exactly
+        parts_sum: dict[str, float] = {}
+        bar = tqdm(range(0, len(order), config.batch), desc=f"epoch {state['epoch'] + 1}/{config.epochs}",
+                   disable=not progress, leave=False)
+        for s in bar:
+            b = batch_tensors(train, order[s:s + config.batch], model)
+            preds = net(b["body_in"], b["gender"], b["size"], b["prior"])
+            truths = net.restrict(b["truth"])
+            loss, parts = loss_fn(preds, truths, b["body"], b["normals"], b["cand"])
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+            opt.step()
+            for k, v in parts.items():
+                parts_sum[k] = parts_sum.get(k, 0.0) + v * len(b["cand"])
+            bar.set_postfix(v2v=f"{parts['v2v']:.2f}")
+        sched.step()
+        val_err = mean_error_cm(predict_set(model, val), val.truth)
+        state["epoch"] += 1
+        epochs_run += 1
+        state["history"].append({"epoch": state["epoch"], "val_mean_error_cm": val_err,
+                                 **{k: v / len(order) for k, v in parts_sum.items()}})
+        if val_err < state["best_val"]:
+            state["best_val"] = val_err
+            model.card = {"epoch": state["epoch"]}
+            model.save(out / "best.npz")
+        torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "rng": torch.get_rng_state(),
+                    "state": json.dumps(state), "config": json.dumps(config.to_dict(), sort_keys=True), "data": len(ts.rows)},
+                   out / (CHECKPOINT + ".tmp"))
+        (out / (CHECKPOINT + ".tmp")).replace(ckpt)
+        if progress:
+            print(f"epoch {state['epoch']}: train v2v {parts_sum.get('v2v', 0) / len(order):.3f} cm, "
+                  f"val mean error {val_err:.3f} cm", flush=True)
+    best = DrapeModel.load(out / "best.npz")
+    best.card = model_card(data, data_dir, best, ts, config, state, time.perf_counter() - t0)
+    best.card["selected_on"] = selected_on
+    best.save(out / "model.npz")
+    with atomic_write(out / "model_card.json") as fh:
+        json.dump(best.card, fh, indent=1)
+    return best
+
+
+def mean_error_cm(pred: np.ndarray, truth: np.ndarray) -> float:
+    return float(100.0 * np.linalg.norm(pred - truth, axis=-1).mean()) if len(truth) else float("nan")
+
+
+def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config: TrainConfig, state: dict,
+               wall_s: float) -> dict:
+    pred = predict_set(model, ts)
+    metrics = {}
+    for split in sorted(set(ts.split.tolist())):
+        k = ts.split == split
+        err = 100.0 * np.linalg.norm(pred[k] - ts.truth[k], axis=-1)
+        prior = 100.0 * np.linalg.norm(ts.prior[k] - ts.truth[k], axis=-1)
+        metrics[split] = {"samples": int(k.sum()), "mean_error_cm": float(err.mean()), "p95_error_cm": float(np.percentile(err, 95)),
+                          "skinning_mean_error_cm": float(prior.mean())}
+    return {"garment": model.garment, "sizes": model.sizes, "trained": timestamp(), "data": str(data_dir),
+            "manifest": json.loads(data.manifest.to_json()), "samples": {s: int((ts.split == s).sum()) for s in set(ts.split.tolist())},
+            "split": data.manifest.split, "train_config": config.to_dict(), "best_epoch": model.card.get("epoch"),
+            "epochs": state["epoch"], "train_wall_s_this_run": wall_s, "metrics": metrics,
+            "history": state["history"][-200:]}
