@@ -19,7 +19,7 @@ pytestmark = [pytest.mark.anny, pytest.mark.slow]
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     out = tmp_path_factory.mktemp("learn") / "tshirt"
-    spec = DrapeDatasetSpec(garment="tshirt", sizes=("S", "M"), count=3, edge_length=0.03, shard_size=4, seed=1,
+    spec = DrapeDatasetSpec(garment="tshirt", sizes=("S", "M"), count=3, edge_length=0.03, shard_size=4, seed=1, extrapolation_bmi=30.0,
                             ranges=BodyRanges(genders=("female",), bmi=(18.0, 32.0)))
     make_drape_dataset(spec, out, progress=False)
     return out
@@ -93,3 +93,20 @@ def test_drape_with_the_learned_method_writes_the_simulated_path_outputs(tiny, t
         assert (out / name).stat().st_size > 0
     assert main(["drape", "--height-cm", "165", "--weight-kg", "60", "--gender", "female", "--size", "XL", "--method", "learned", "--model",
                  str(tmp_path / "m" / "model.npz"), "--out", str(tmp_path / "xl"), "--quiet"]) == 2
+
+
+def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path):
+    train_drape(tiny, tmp_path / "m", TrainConfig(epochs=2, batch=2), progress=False)
+    out = tmp_path / "bench.json"
+    assert main(["bench", "learned", "--data", str(tiny), "--model", str(tmp_path / "m" / "model.npz"), "--quick",
+                 "--json", str(out)]) == 0
+    recs = json.loads(out.read_text())["records"]
+    assert {r["method"] for r in recs} == {"learned", "skinning", "nearest", "tailornet-pca"}
+    keys = {"method", "split", "mean_error_cm", "p95_error_cm", "interpenetration_pct", "edge_error_pct", "potential_ratio",
+            "inference_ms", "refine_s", "simulation_s"}
+    for r in recs:
+        assert keys <= set(r) and r["split"] in ("test", "extrapolation")
+        assert 0 <= r["mean_error_cm"] <= r["p95_error_cm"] and 0 <= r["interpenetration_pct"] <= 100
+        assert r["simulation_s"] > 0 and r["inference_ms"] > 0
+    sk = [r for r in recs if r["method"] == "skinning"]
+    assert all(r["error_vs_skinning"] == 1.0 for r in sk)

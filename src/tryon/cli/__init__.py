@@ -232,6 +232,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         run_parallel_bench(args.json, quick=args.quick, workers=args.workers)
         return 0
+    if args.what == "learned":
+        from tryon.bench.learned import run_learned_bench
+
+        if not args.data:
+            raise TryonError("tryon bench learned needs --data DATASET (a drape dataset from tryon dataset drape)")
+        run_learned_bench(args.json, args.data, model_path=args.model, quick=args.quick)
+        return 0
     if args.what == "drape" and args.matrix:
         from tryon.bench.drape_matrix import run_drape_matrix
 
@@ -242,7 +249,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         run_drape_bench(args.json, quick=args.quick)
         return 0
-    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness, drape, grad, parallel")
+    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness, drape, grad, parallel, learned")
 
 
 def _parallel_args(p: argparse.ArgumentParser) -> None:
@@ -349,13 +356,15 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(func=_cmd_fabrics)
 
     b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")
-    b.add_argument("what", choices=["sim", "robustness", "drape", "grad", "parallel"])
+    b.add_argument("what", choices=["sim", "robustness", "drape", "grad", "parallel", "learned"])
     b.add_argument("--json", default="bench.json", help="output JSON path")
     b.add_argument("--quick", action="store_true", help="fewer steps (smoke run)")
     b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
+    b.add_argument("--data", help="learned: the drape dataset whose test and extrapolation splits are judged")
+    b.add_argument("--model", help="learned: a model file instead of the shipped one")
     b.add_argument("--matrix", action="store_true",
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)
