@@ -91,6 +91,11 @@ def test_drape_with_the_learned_method_writes_the_simulated_path_outputs(tiny, t
     assert rep["penetration_pct"] < 5.0
     for name in ("garment.obj", "tryon.glb", "render_front.png", "fit_map.png", "drape_state.npz"):
         assert (out / name).stat().st_size > 0
+    refined = tmp_path / "refined"
+    assert main(["drape", "--height-cm", "165", "--weight-kg", "60", "--gender", "female", "--size", "S", "--method", "learned",
+                 "--refine", "--model", str(tmp_path / "m" / "model.npz"), "--out", str(refined), "--quiet"]) == 0
+    rep = json.loads((refined / "report.json").read_text())
+    assert rep["method"] == "learned+refine" and rep["penetration_pct"] == 0 and rep["timings"]["refine_s"] > 0
     assert main(["drape", "--height-cm", "165", "--weight-kg", "60", "--gender", "female", "--size", "XL", "--method", "learned", "--model",
                  str(tmp_path / "m" / "model.npz"), "--out", str(tmp_path / "xl"), "--quiet"]) == 2
 
@@ -101,7 +106,7 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
     assert main(["bench", "learned", "--data", str(tiny), "--model", str(tmp_path / "m" / "model.npz"), "--quick",
                  "--json", str(out)]) == 0
     recs = json.loads(out.read_text())["records"]
-    assert {r["method"] for r in recs} == {"learned", "skinning", "nearest", "tailornet-pca"}
+    assert {r["method"] for r in recs} == {"learned", "learned+refine", "skinning", "nearest", "tailornet-pca"}
     keys = {"method", "split", "mean_error_cm", "p95_error_cm", "interpenetration_pct", "edge_error_pct", "potential_ratio",
             "inference_ms", "refine_s", "simulation_s"}
     for r in recs:
@@ -110,3 +115,5 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
         assert r["simulation_s"] > 0 and r["inference_ms"] > 0
     sk = [r for r in recs if r["method"] == "skinning"]
     assert all(r["error_vs_skinning"] == 1.0 for r in sk)
+    refined = [r for r in recs if r["method"] == "learned+refine"]
+    assert all(r["interpenetration_pct"] == 0 and r["refine_s"] > 0 for r in refined)

@@ -104,9 +104,9 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     if args.method == "learned":
         from tryon.learn.drape import learned_drape
 
-        result = learned_drape(req, args.model)
-    elif args.model:
-        raise TryonError("--model is the network of --method learned")
+        result = learned_drape(req, args.model, refine=args.refine)
+    elif args.model or args.refine:
+        raise TryonError("--model and --refine belong to --method learned")
     else:
         result = drape(req, progress=not args.quiet)
     rep = write_outputs(result, out, force=args.force)
@@ -317,6 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--method", choices=["simulate", "learned"], default="simulate",
                    help="simulate the drape, or predict it with the trained network (milliseconds; standard sizes it knows)")
     d.add_argument("--model", help="a draping model file (tryon train drape) instead of the one shipped for the garment")
+    d.add_argument("--refine", action="store_true",
+                   help="learned: relax the prediction with the simulator (no vertex inside the body; seconds)")
     d.add_argument("--out", default="out/drape", help="output directory")
     d.add_argument("--quiet", action="store_true")
     _force_arg(d)

@@ -17,7 +17,9 @@ from tryon.drape.pipeline import DrapeRequest, DrapeResult
 from tryon.errors import TryonError
 
 
-def learned_drape(request: DrapeRequest, model_path: str | None = None) -> DrapeResult:
+def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: bool = False) -> DrapeResult:
+    """The drape of `request` predicted by the learned model (the shipped one of the garment,
+    or `model_path`); with `refine`, relaxed by the simulator (tryon.learn.refine)."""
     from tryon.drape.dress import cloth_on_body
     from tryon.drape.fit_metrics import drape_metrics
     from tryon.fabric import load_fabric
@@ -42,13 +44,22 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None) -> Drape
     t2 = time.perf_counter()
     x = model.predict_vertices(target.vertices, request.body.gender, size)
     timings["inference_ms"] = 1000.0 * (time.perf_counter() - t2)
+    refined: dict = {}
+    if refine:
+        from tryon.learn.refine import refine_drape
+
+        x, refined = refine_drape(x, garment, target, load_fabric(request.fabric), request.thickness, request.friction,
+                                  request.dt, rest_speed=request.rest_speed)
+        timings["refine_s"] = refined["refine_s"]
     result = DrapeResult(request, person, None, garment, target.vertices, target.faces, x, [x], [0.0], timings=timings)
     t3 = time.perf_counter()
     body = Obstacle("body", target.vertices, target.faces)
     sim_model = cloth_on_body(garment.cloth_mesh(x), load_fabric(request.fabric), body, request.thickness,
                               friction=request.friction)
     result.metrics = drape_metrics(result, ImplicitEulerSolver(sim_model))
-    result.metrics.update({"method": "learned", "model": model.card.get("trained", "?"), "steps": 0, "settled": True,
+    result.metrics.update(refined)
+    result.metrics.update({"method": "learned+refine" if refine else "learned", "model": model.card.get("trained", "?"), "steps": refined.get("refine_steps", 0),
+                           "settled": refined.get("refine_final_speed", 0.0) <= request.rest_speed,
                            "simulated_s": 0.0, "morph_s": 0.0, "speed_recoveries": [], "failsafe_steps": 0})
     timings["metrics_s"] = time.perf_counter() - t3
     timings["wall_s"] = time.perf_counter() - t0
