@@ -97,3 +97,12 @@ def test_ray_workers_make_the_same_samples(dataset, tmp_path):
     gap = np.linalg.norm(local - remote, axis=-1)
     assert np.median(gap) < 0.001, np.median(gap)
     assert np.percentile(gap, 99) < 0.01, np.percentile(gap, 99)
+
+
+def test_a_packed_dataset_keeps_every_sample_in_half_precision(dataset, tmp_path):
+    out, _, _ = dataset
+    assert main(["dataset", "pack", str(out), "--out", str(tmp_path / "packed")]) == 0
+    full, packed = load_drape_dataset(out), load_drape_dataset(tmp_path / "packed")
+    assert packed.arrays["x"].dtype == np.float16 and packed.arrays["unit"].tolist() == full.arrays["unit"].tolist()
+    assert np.abs(packed.arrays["x"].astype(np.float32) - full.arrays["x"]).max() < 0.001
+    assert packed.manifest.spec == full.manifest.spec and set(packed.references) == set(full.references)

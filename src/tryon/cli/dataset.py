@@ -26,6 +26,15 @@ def _cmd_dataset_drape(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset_pack(args: argparse.Namespace) -> int:
+    from tryon.dataset.loading import load_drape_dataset, pack_dataset
+
+    out = pack_dataset(args.dataset, args.out, force=args.force)
+    print(json.dumps(load_drape_dataset(out).summary(), indent=1))
+    print(f"compact dataset: {out}")
+    return 0
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register `tryon dataset ...` on the `tryon` parser."""
     d = sub.add_parser("dataset", help="make datasets for the learned systems (resumable, Ray)")
@@ -49,3 +58,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     p.set_defaults(func=_cmd_dataset_drape)
+    k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control")
+    k.add_argument("dataset", help="dataset folder")
+    k.add_argument("--out", required=True, help="folder of the copy")
+    k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    k.set_defaults(func=_cmd_dataset_pack)

@@ -74,4 +74,30 @@ def load_drape_dataset(folder: str | Path) -> DrapeDataset:
     return DrapeDataset(manifest, arrays, faces, refs)
 
 
-__all__ = ["make_drape_dataset", "load_drape_dataset", "DrapeDataset", "Reference"]
+def pack_dataset(src: str | Path, dst: str | Path, force: bool = False) -> Path:
+    """A compact copy of a dataset to keep in version control: garment vertices as
+    float16 (0.5 mm steps at 1 m, well below a drape's noise), everything else as it
+    is. The copy is a dataset of its own: it loads, trains and resumes like the original."""
+    import shutil
+
+    from tryon.io.atomic import atomic_write, claim_work_dir
+    from tryon.io.npz import read_npz
+
+    src = Path(src)
+    manifest = Manifest.read(src)
+    store = ShardStore(src, manifest)
+    out = claim_work_dir(dst, force=force)
+    shutil.copytree(src / "references", out / "references")
+    (out / "manifest.json").write_text((src / "manifest.json").read_text())
+    files = sorted(store.shards.glob("*.npz")) + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
+    for f in files:
+        arrays = read_npz(f, "dataset file")
+        arrays["x"] = arrays["x"].astype(np.float16)
+        target = out / f.relative_to(src)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(target, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+    return out
+
+
+__all__ = ["make_drape_dataset", "load_drape_dataset", "pack_dataset", "DrapeDataset", "Reference"]
