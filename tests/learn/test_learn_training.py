@@ -117,3 +117,21 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
     assert all(r["error_vs_skinning"] == 1.0 for r in sk)
     refined = [r for r in recs if r["method"] == "learned+refine"]
     assert all(r["interpenetration_pct"] == 0 and r["refine_s"] > 0 for r in refined)
+
+
+def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tiny, tmp_path, capsys):
+    train_drape(tiny, tmp_path / "m", TrainConfig(epochs=2, batch=2), progress=False)
+    out = tmp_path / "size"
+    assert main(["size", "--height-cm", "165", "--weight-kg", "62", "--gender", "female", "--model",
+                 str(tmp_path / "m" / "model.npz"), "--out", str(out), "--quiet"]) == 0
+    rec = json.loads((out / "size.json").read_text())
+    assert rec["recommended"] in ("S", "M") and rec["reasons"] and rec["method"] == "learned+refine"
+    assert [s["size"] for s in rec["sizes"]] == ["S", "M"]
+    for s in rec["sizes"]:
+        assert set(s["regions"]) == {"front", "back", "sleeve_L", "sleeve_R"} and s["penetration_pct"] == 0
+    # a bigger size hangs looser on the same body
+    assert rec["sizes"][1]["torso_ease_cm"] > rec["sizes"][0]["torso_ease_cm"] - 0.2
+    from PIL import Image
+
+    assert Image.open(out / "sizes.png").size[0] > 1000
+    assert "recommended size" in capsys.readouterr().out

@@ -119,6 +119,20 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_size(args: argparse.Namespace) -> int:
+    from tryon.learn.size import size_recommendation, write_size_outputs
+
+    out = check_output_dir(args.out, force=args.force)
+    rec, results = size_recommendation(_measurements(args), garment=args.garment, fabric=args.fabric, method=args.method,
+                                       refine=not args.no_refine, model_path=args.model, sizes=args.sizes)
+    write_size_outputs(rec, results, out, force=args.force)
+    print(f"recommended size: {rec['recommended']} ({rec['method']}, {rec['wall_s']:.1f} s)")
+    for line in rec["reasons"]:
+        print(f"  {line}")
+    print(f"-> {out}/size.json, {out}/sizes.png")
+    return 0
+
+
 def _cmd_animate(args: argparse.Namespace) -> int:
     from tryon.drape.animate import animate
 
@@ -324,6 +338,20 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(d)
     d.set_defaults(func=_cmd_drape)
 
+    z = sub.add_parser("size", help="recommend a size: drape every size, score ease, strain and pressure per region")
+    _body_args(z)
+    z.add_argument("--garment", default="tshirt", help="a garment with a learned model (tshirt)")
+    z.add_argument("--fabric", default="gray-interlock", help="fabric preset or .json")
+    z.add_argument("--sizes", nargs="+", help="sizes to compare (default: every size the model knows)")
+    z.add_argument("--method", choices=["learned", "simulate"], default="learned",
+                   help="predict each size's drape (refined by the simulator), or simulate it (minutes)")
+    z.add_argument("--no-refine", action="store_true", help="learned: skip the simulator's refinement")
+    z.add_argument("--model", help="a draping model file instead of the shipped one")
+    z.add_argument("--out", default="out/size", help="output directory (size.json, sizes.png)")
+    z.add_argument("--quiet", action="store_true")
+    z.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    z.set_defaults(func=_cmd_size)
+
     a = sub.add_parser("animate", help="the garment of a drape following a body motion")
     a.add_argument("drape_dir", help="output directory of `tryon drape`")
     a.add_argument("--motion", default="walk", help="walk, arm-raise, turn, or a motion .npz / .bvh file")
@@ -373,11 +401,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     from tryon.cli.dataset import add_commands as add_dataset_commands
     from tryon.cli.inverse import add_commands as add_inverse_commands
-    from tryon.cli.train import add_commands as add_train_commands
+    from tryon.cli.learned import add_commands as add_learned_commands
 
     add_inverse_commands(sub)
     add_dataset_commands(sub)
-    add_train_commands(sub)
+    add_learned_commands(sub)
     return p
 
 

@@ -17,9 +17,11 @@ from tryon.drape.pipeline import DrapeRequest, DrapeResult
 from tryon.errors import TryonError
 
 
-def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: bool = False) -> DrapeResult:
+def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: bool = False, person=None,
+                  model=None) -> DrapeResult:
     """The drape of `request` predicted by the learned model (the shipped one of the garment,
-    or `model_path`); with `refine`, relaxed by the simulator (tryon.learn.refine)."""
+    or `model_path`); with `refine`, relaxed by the simulator (tryon.learn.refine). A caller
+    draping several sizes passes the fitted `person` and the loaded `model` once."""
     from tryon.drape.dress import cloth_on_body
     from tryon.drape.fit_metrics import drape_metrics
     from tryon.fabric import load_fabric
@@ -34,11 +36,12 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
     size = request.size.upper()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    model = DrapeModel.load(model_path) if model_path else load_shipped(request.garment)
+    if model is None:
+        model = DrapeModel.load(model_path) if model_path else load_shipped(request.garment)
     garment = model.reference_garment(request.body.gender, size)
     timings["load_model_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    person = fit_body(request.body)
+    person = person or fit_body(request.body)
     target = posed_body(person.shape, "a", drafting_measurements(person.shape)["crotch_height"])
     timings["fit_body_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()

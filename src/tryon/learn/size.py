@@ -1,0 +1,146 @@
+"""`tryon size`: which size of a garment fits a person.
+
+Every size the learned model knows is draped on the person (learned + refinement, or
+simulated with `method="simulate"`), and each garment region (its pattern panels) is
+scored by ease (mean distance from the skin, cm), strain (area-weighted mean, and the
+share of area stretched beyond `OVERSTRAIN`) and contact pressure. A size fits when less
+than `MAX_OVERSTRAINED_PCT` of its area is overstretched and no region clings tighter
+than `MIN_EASE_CM`; among the sizes that fit, the one whose torso ease is nearest
+`TARGET_EASE_CM` (a regular fit) is recommended. If none fits, the largest is named, with
+the reason. Writes `size.json` (key `recommended`, the reasons and every size's numbers)
+and `sizes.png` (each size's strain map, front and back)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tryon.body.fit import Measurements, fit_body
+from tryon.drape.pipeline import DrapeRequest, DrapeResult
+from tryon.errors import TryonError
+
+OVERSTRAIN = 0.10
+MAX_OVERSTRAINED_PCT = 10.0
+MIN_EASE_CM = 0.5
+TARGET_EASE_CM = 4.0
+TORSO = ("front", "back")
+
+
+def region_scores(result: DrapeResult) -> dict[str, dict[str, float]]:
+    """Per panel: ease (cm), mean strain (%), overstrained area (%), mean contact pressure (kPa)."""
+    from tryon.sim.collision import nearest_surface_points
+
+    g = result.garment
+    names = [p.name for p in g.pattern.panels]
+    d, _, _ = nearest_surface_points(result.x, result.body_vertices, result.body_faces)
+    area = np.abs(np.cross(*(g.corner_uv[:, 1:] - g.corner_uv[:, :1]).transpose(1, 0, 2))) / 2
+    out = {}
+    for k, name in enumerate(names):
+        f = g.face_panel == k
+        v = np.unique(g.faces[f])
+        a = area[f]
+        out[name] = {"ease_cm": float(100 * d[v].mean()), "mean_strain_pct": float(100 * (result.strain[f] * a).sum() / a.sum()),
+                     "overstrained_area_pct": float(100 * a[result.strain[f] > OVERSTRAIN].sum() / a.sum()),
+                     "mean_pressure_kpa": float(result.pressure[v].mean() / 1000.0)}
+    return out
+
+
+def judge_size(size: str, result: DrapeResult) -> dict:
+    regions = region_scores(result)
+    torso = [regions[r] for r in TORSO if r in regions]
+    ease = float(np.mean([r["ease_cm"] for r in torso])) if torso else float("nan")
+    over = float(result.metrics["overstrained_area_pct"])
+    tight = [name for name, r in regions.items() if r["ease_cm"] < MIN_EASE_CM]
+    why = []
+    if over >= MAX_OVERSTRAINED_PCT:
+        why.append(f"{over:.0f} % of its area is stretched beyond {100 * OVERSTRAIN:.0f} %")
+    if tight:
+        why.append(f"it clings to the skin at the {', '.join(tight)} (ease under {MIN_EASE_CM} cm)")
+    return {"size": size, "fits": not why, "why_not": why, "torso_ease_cm": ease, "overstrained_area_pct": over,
+            "max_strain_pct": 100 * float(result.metrics["max_strain"]), "penetration_pct": float(result.metrics["penetration_pct"]),
+            "regions": regions, "timings": result.timings}
+
+
+def recommend(judged: list[dict]) -> tuple[str, list[str]]:
+    fitting = [j for j in judged if j["fits"]]
+    if not fitting:
+        last = judged[-1]
+        return last["size"], [f"no size fits: even {last['size']} does not, since " + "; ".join(last["why_not"])]
+    best = min(fitting, key=lambda j: abs(j["torso_ease_cm"] - TARGET_EASE_CM))
+    reasons = [f"{best['size']}: torso ease {best['torso_ease_cm']:.1f} cm (a regular fit is about {TARGET_EASE_CM:.0f} cm), "
+               f"{best['overstrained_area_pct']:.0f} % of the area overstretched"]
+    for j in judged:
+        if j is best:
+            continue
+        if j["fits"]:
+            reasons.append(f"{j['size']} also fits, {'looser' if j['torso_ease_cm'] > best['torso_ease_cm'] else 'closer'}: "
+                           f"torso ease {j['torso_ease_cm']:.1f} cm")
+        else:
+            reasons.append(f"{j['size']} does not fit: " + "; ".join(j["why_not"]))
+    return best["size"], reasons
+
+
+def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str = "gray-interlock",
+                        method: str = "learned", refine: bool = True, model_path: str | None = None,
+                        sizes: list[str] | None = None) -> tuple[dict, list[DrapeResult]]:
+    """(the recommendation as a dict, the drape of every size)."""
+    from tryon.learn.drape import learned_drape
+    from tryon.learn.model import DrapeModel, load_shipped
+
+    if method not in ("learned", "simulate"):
+        raise TryonError(f"unknown method {method!r}; use learned or simulate")
+    t0 = time.perf_counter()
+    model = DrapeModel.load(model_path) if model_path else load_shipped(garment)
+    sizes = sizes or model.sizes
+    DrapeRequest(body, garment=garment, size=sizes[0], fabric=fabric).validate()
+    person = fit_body(body)
+    fit_s = time.perf_counter() - t0
+    results = []
+    for size in sizes:
+        req = DrapeRequest(body, garment=garment, size=size, fabric=fabric)
+        if method == "learned":
+            results.append(learned_drape(req, refine=refine, person=person, model=model))
+        else:
+            from tryon.drape import drape
+
+            results.append(drape(req, progress=False))
+    judged = [judge_size(s, r) for s, r in zip(sizes, results)]
+    best, reasons = recommend(judged)
+    return {"recommended": best, "reasons": reasons, "garment": garment, "fabric": fabric,
+            "method": method + ("+refine" if method == "learned" and refine else ""), "body": results[0].person.report(),
+            "sizes": judged, "fit_body_s": fit_s, "wall_s": time.perf_counter() - t0}, results
+
+
+def sizes_picture(results: list[DrapeResult], judged: list[dict], recommended: str) -> np.ndarray:
+    """Each size's strain map (front and back), labelled, side by side."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    from tryon.drape.outputs import fit_map_image
+
+    try:
+        font = ImageFont.load_default(size=26)
+    except TypeError:  # Pillow before 10.1: the fixed bitmap font
+        font = ImageFont.load_default()
+    tiles = []
+    for r, j in zip(results, judged):
+        img = fit_map_image(r.body_vertices, r.body_faces, r.x, r.garment.faces, 100.0 * r.strain, vmax=20.0, label="strain %")
+        pil = Image.fromarray(img[..., :3])
+        mark = " (recommended)" if j["size"] == recommended else ("" if j["fits"] else " (does not fit)")
+        ImageDraw.Draw(pil).text((12, 12), f"size {j['size']}{mark}: torso ease {j['torso_ease_cm']:.1f} cm", fill=(0, 0, 0), font=font)
+        tiles.append(np.asarray(pil))
+    h = max(t.shape[0] for t in tiles)
+    tiles = [np.pad(t, ((0, h - t.shape[0]), (0, 0), (0, 0)), constant_values=255) for t in tiles]
+    return np.concatenate(tiles, axis=1)
+
+
+def write_size_outputs(rec: dict, results: list[DrapeResult], out: str | Path, force: bool = False) -> Path:
+    from tryon.io.atomic import atomic_output_dir
+    from tryon.io.json_safe import dumps_json
+    from tryon.render.offscreen import save_png
+
+    with atomic_output_dir(out, force=force) as tmp:
+        (tmp / "size.json").write_text(dumps_json(rec, indent=1))
+        save_png(tmp / "sizes.png", sizes_picture(results, rec["sizes"], rec["recommended"]))
+    return Path(out)
