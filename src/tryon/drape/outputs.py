@@ -9,6 +9,7 @@ import numpy as np
 from tryon.io.atomic import atomic_output_dir, atomic_write
 from tryon.io.frames import save_frames_npz
 from tryon.io.mesh_io import write_glb, write_obj
+from tryon.render.appearance import appearance, fabric_colors
 from tryon.render.colormap import add_colorbar, scalar_to_rgb
 from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 from tryon.io.json_safe import dumps_json
@@ -84,11 +85,13 @@ def write_outputs(result, out: str | Path, force: bool = False) -> dict:
     g = result.garment
     bv, bf = result.body_vertices, result.body_faces
     report = report_dict(result)
+    colors = fabric_colors(str(result.request.fabric), g.uv)
     with atomic_output_dir(out, force=force) as tmp:
         write_obj(tmp / "garment.obj", result.x, g.faces, corner_uv=g.corner_uv)  # vt: material coordinates (m)
         write_obj(tmp / "body.obj", bv, bf)
-        write_glb(tmp / "tryon.glb", [(bv, bf, SKIN, "body"), (result.x, g.faces, CLOTH, "garment")])
-        for view, img in zip(VIEWS, render_views(bv, bf, result.x, g.faces)):
+        write_glb(tmp / "tryon.glb", [(bv, bf, SKIN, "body"), (result.x, g.faces, appearance(str(result.request.fabric)).color,
+                                                                 "garment")])
+        for view, img in zip(VIEWS, render_views(bv, bf, result.x, g.faces, colors)):
             save_png(tmp / f"render_{view}.png", img)
         save_png(tmp / "fit_map.png", fit_map_image(bv, bf, result.x, g.faces, 100.0 * result.strain,
                                                     vmax=max(10.0, float(np.percentile(100 * result.strain, 99))), label="strain %"))
