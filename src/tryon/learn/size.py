@@ -35,7 +35,8 @@ def region_scores(result: DrapeResult) -> dict[str, dict[str, float]]:
     g = result.garment
     names = [p.name for p in g.pattern.panels]
     d, _, _ = nearest_surface_points(result.x, result.body_vertices, result.body_faces)
-    area = np.abs(np.cross(*(g.corner_uv[:, 1:] - g.corner_uv[:, :1]).transpose(1, 0, 2))) / 2
+    e1, e2 = g.corner_uv[:, 1] - g.corner_uv[:, 0], g.corner_uv[:, 2] - g.corner_uv[:, 0]
+    area = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) / 2  # rest area of each face (m^2)
     out = {}
     for k, name in enumerate(names):
         f = g.face_panel == k
