@@ -93,16 +93,18 @@ def frame_metrics(scene: Scene, positions: np.ndarray, times: np.ndarray, base: 
 
 def render_preview(scene: Scene, positions: np.ndarray, times: np.ndarray, size=(360, 480), progress: bool = True) -> list[np.ndarray]:
     """Front three-quarter renders of body and garment, one per frame, framed once."""
-    from tryon.drape.outputs import CLOTH, SKIN
+    from tryon.drape.outputs import SKIN
+    from tryon.render.appearance import fabric_colors
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes
 
     model = scene.model
+    colors = fabric_colors(model.fabric.name, model.mesh.uv.numpy())
     faces = model.faces.numpy()
     bodies = [model.obstacles.vertices_at(float(t)) for t in times]
     cam = Camera.fit([np.concatenate([bodies[0], bodies[-1], positions[0]])], "three_quarter", aspect=size[0] / size[1], margin=1.15)
     images = []
     for x, b in tqdm(list(zip(positions, bodies)), desc="rendering", unit="frame", disable=not progress, leave=False):
-        meshes = [RenderMesh(b, model.obstacles.faces, color=SKIN, two_sided=False), RenderMesh(x, faces, color=CLOTH)]
+        meshes = [RenderMesh(b, model.obstacles.faces, color=SKIN, two_sided=False), RenderMesh(x, faces, vertex_colors=colors)]
         images.append(render_meshes(meshes, size[0], size[1], camera=cam))
     return images
 

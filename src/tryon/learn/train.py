@@ -142,6 +142,8 @@ def train_drape(data_dir: str | Path, out: str | Path, config: TrainConfig | Non
     best.save(out / "model.npz")
     with atomic_write(out / "model_card.json") as fh:
         json.dump(best.card, fh, indent=1)
+    with atomic_write(out / "MODEL_CARD.md") as fh:
+        fh.write(card_markdown(best.card))
     return best
 
 
@@ -164,3 +166,33 @@ def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config:
             "split": data.manifest.split, "train_config": config.to_dict(), "best_epoch": model.card.get("epoch"),
             "epochs": state["epoch"], "train_wall_s_this_run": wall_s, "metrics": metrics,
             "history": state["history"][-200:]}
+
+
+def card_markdown(card: dict) -> str:
+    """The model card for people: what the model is, its data, its split and its numbers."""
+    spec = card["manifest"]["spec"]
+    r = spec["ranges"]
+    lines = [f"# Learned draping model: {card['garment']}, sizes {', '.join(card['sizes'])}", "",
+             "Predicts the drape `tryon drape` simulates for an A-posed Anny body, in milliseconds on a CPU "
+             "(docs/LEARNED.md). Trained " + str(card["trained"]) + ".", "",
+             "## Data", "",
+             f"- {sum(card['samples'].values())} simulated drapes (`tryon dataset drape`, seed {card['manifest']['seed']}, "
+             f"software {card['manifest']['software_version']}): {spec['garment']} in {', '.join(spec['sizes'])}, "
+             f"fabric {spec['fabric']} (Wang et al. 2011, measured), {spec['edge_length'] * 100:.1f} cm edges.",
+             f"- Bodies: Anny (Apache-2.0, CC0 data), genders {', '.join(r['genders'])}, BMI uniform in "
+             f"{r['bmi'][0]:g}-{r['bmi'][1]:g}, stature uniform per gender "
+             + ", ".join(f"{g} {h[0]:g}-{h[1]:g} cm" for g, h in r["height_cm"].items()) + f", age {r['age_years'][0]:g}-{r['age_years'][1]:g}.",
+             f"- Split by body ({card['split']['rule']}): " + ", ".join(f"{k} {v}" for k, v in sorted(card["samples"].items()))
+             + f"; extrapolation = BMI >= {card['split']['extrapolation_bmi']:g}. Selected on: {card.get('selected_on', 'val')}.",
+             "", "## Metrics (vertex error against the simulated drape)", "",
+             "| split | samples | mean cm | p95 cm | skinning baseline mean cm |", "|---|---:|---:|---:|---:|"]
+    for split, m in sorted(card["metrics"].items()):
+        lines.append(f"| {split} | {m['samples']} | {m['mean_error_cm']:.2f} | {m['p95_error_cm']:.2f} | {m['skinning_mean_error_cm']:.2f} |")
+    t = card["train_config"]
+    lines += ["", "## Training", "",
+              f"{card['epochs']} epochs (best {card['best_epoch']}), batch {t['batch']}, learning rate {t['lr']}, seed {t['seed']}; "
+              f"loss weights {t['weights']}.", "",
+              "## Limits", "",
+              "Bodies outside the ranges above, other poses than the A-pose, other fabrics and sizes are outside what the "
+              "model has seen: simulate those (`--method simulate`), or refine the prediction (`--refine`).", ""]
+    return "\n".join(lines)

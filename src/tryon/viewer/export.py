@@ -22,10 +22,10 @@ import torch
 from tryon.errors import InputFileError
 from tryon.io.atomic import atomic_output_dir, atomic_write
 from tryon.io.json_safe import dumps_json
+from tryon.render.appearance import appearance
 
 STATIC_FILES = ("index.html", "viewer.js", "three-bundle.min.js", "LICENSE-three.txt")
 SKIN = (0.80, 0.68, 0.60)
-CLOTH = (0.27, 0.45, 0.72)
 
 
 def vertex_strain_percent(positions: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
@@ -111,7 +111,7 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
                  "faces": layout["body_faces"]},
         "strain_max": float(max(10.0, np.percentile(strain, 99))),
         "pressure_max": float(max(0.5, np.percentile(seq["pressure"], 99))) if seq["pressure"] is not None else 1.0,
-        "colors": {"skin": list(SKIN), "cloth": list(CLOTH)},
+        "colors": {"skin": list(SKIN), "cloth": list(appearance(str(st["request"]["fabric"])).color)},
     }
     out = Path(out) if out is not None else drape_dir / ("viewer" if animation is None else f"viewer-{animation}")
     with atomic_output_dir(out, force=force) as tmp:
