@@ -116,6 +116,8 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     print(f"{req.garment} {rep['size'] or ''} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
           f"penetration {rep['penetration_pct']:.2f} % of vertices, {rep['steps']} steps, "
           f"{'at rest' if rep['settled'] else 'still moving'}; {rep['wall_s']:.1f} s -> {out}")
+    for note in rep.get("notes", []):
+        print(f"note: {note}")
     return 0
 
 
@@ -129,6 +131,8 @@ def _cmd_size(args: argparse.Namespace) -> int:
     print(f"recommended size: {rec['recommended']} ({rec['method']}, {rec['wall_s']:.1f} s)")
     for line in rec["reasons"]:
         print(f"  {line}")
+    for note in rec["notes"]:
+        print(f"note: {note}")
     print(f"-> {out}/size.json, {out}/sizes.png")
     return 0
 

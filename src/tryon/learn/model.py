@@ -78,6 +78,23 @@ class DrapeModel:
             raise ModelError(f"the learned {self.garment} model has no reference for a {gender} body in size {size}")
         return self.priors[(gender, size)].carry(body_vertices)
 
+    def coverage_notes(self, gender: str, height_cm: float, bmi: float) -> list[str]:
+        """Where a body lies outside what the model was trained on (empty when inside)."""
+        spec = self.card.get("manifest", {}).get("spec", {})
+        r = spec.get("ranges")
+        if not r:
+            return []
+        notes = []
+        if gender not in r["genders"]:
+            notes.append(f"the model was trained on {', '.join(r['genders'])} bodies only")
+        lo, hi = r["bmi"]
+        if not lo <= bmi <= hi:
+            notes.append(f"BMI {bmi:.1f} is outside the model's training range {lo:g}-{hi:g}")
+        h = r["height_cm"].get(gender)
+        if h and not h[0] <= height_cm <= h[1]:
+            notes.append(f"stature {height_cm:.0f} cm is outside the model's training range {h[0]:g}-{h[1]:g} cm")
+        return [n + ": refine (--refine) or simulate (--method simulate) to be sure" for n in notes]
+
     # ------------------------------------------------------------------ prediction
     @torch.no_grad()
     def predict_vertices(self, body_vertices: np.ndarray, gender: str, size: str) -> np.ndarray:

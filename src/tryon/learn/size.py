@@ -111,7 +111,8 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
     best, reasons = recommend(judged)
     return {"recommended": best, "reasons": reasons, "garment": garment, "fabric": fabric,
             "method": method + ("+refine" if method == "learned" and refine else ""), "body": results[0].person.report(),
-            "sizes": judged, "fit_body_s": fit_s, "wall_s": time.perf_counter() - t0}, results
+            "sizes": judged, "notes": results[0].metrics.get("notes", []), "fit_body_s": fit_s,
+            "wall_s": time.perf_counter() - t0}, results
 
 
 def sizes_picture(results: list[DrapeResult], judged: list[dict], recommended: str) -> np.ndarray:
