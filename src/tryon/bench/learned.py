@@ -52,6 +52,7 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
     t0 = time.perf_counter()
     data = load_drape_dataset(data_dir)
     model = DrapeModel.load(model_path) if model_path else load_shipped(data.manifest.spec["garment"])
+    model.check_dataset(data.manifest.spec)
     ts = training_set(data, model.priors, model.region, progress=False)
     train = ts.subset(ts.split == "train")
     baselines = {"nearest": NearestNeighbour(train),

@@ -114,11 +114,22 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
           f"{a['weight_kg']:.1f} kg / BMI {a['bmi']:.1f} (chest {a['chest_cm']:.0f}, waist {a['waist_cm']:.0f}, hip {a['hip_cm']:.0f} cm)")
     print(f"{req.garment} {rep['size'] or ''} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
-          f"penetration {rep['penetration_pct']:.2f} % of vertices, {rep['steps']} steps, "
-          f"{'at rest' if rep['settled'] else 'still moving'}; {rep['wall_s']:.1f} s -> {out}")
+          f"penetration {rep['penetration_pct']:.2f} % of vertices, " + _how(rep) + f"; {rep['wall_s']:.1f} s -> {out}")
     for note in rep.get("notes", []):
         print(f"note: {note}")
     return 0
+
+
+def _how(rep: dict) -> str:
+    """How the drape was made, for the one-line summary."""
+    method = rep.get("method", "simulate")
+    if method.startswith("learned"):
+        how = f"predicted in {rep['timings']['inference_ms']:.0f} ms"
+        if "refine_s" in rep["timings"]:
+            how += f", refined in {rep['timings']['refine_s']:.1f} s ({rep['refine_steps']} steps, " \
+                   f"{'at rest' if rep['settled'] else 'still moving'})"
+        return how
+    return f"{rep['steps']} steps, {'at rest' if rep['settled'] else 'still moving'}"
 
 
 def _cmd_size(args: argparse.Namespace) -> int:

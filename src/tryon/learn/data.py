@@ -54,7 +54,9 @@ def model_parts(data: DrapeDataset, folder: Path, levels: int = 4, eigen: int = 
     """The hierarchy, skin priors and body region of a dataset's garment."""
     refs = references(data, folder)
     topo = data.manifest.spec["topology"]
-    base = data.references[(topo["gender"], topo["size"])]
+    key = (topo["gender"], topo["size"])
+    # the topology's own reference is the hierarchy's source; any reference has the same faces
+    base = data.references.get(key) or next(iter(data.references.values()))
     hierarchy = build_hierarchy(base.faces, base.corner_uv, base.face_panel, base.pattern, data.manifest.spec["edge_length"],
                                 levels=levels, eigenvectors=eigen)
     priors = {k: SkinPrior.bind(x, body.vertices, body.faces) for k, (x, body) in refs.items()}

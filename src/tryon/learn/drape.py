@@ -63,7 +63,7 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
     result.metrics.update(refined)
     result.metrics["notes"] = model.coverage_notes(request.body.gender, person.achieved["height_cm"], person.achieved["bmi"])
     result.metrics.update({"method": "learned+refine" if refine else "learned", "model": model.card.get("trained", "?"), "steps": refined.get("refine_steps", 0),
-                           "settled": refined.get("refine_final_speed", 0.0) <= request.rest_speed,
+                           "settled": refined["refine_final_speed"] <= request.rest_speed if refine else None,
                            "simulated_s": 0.0, "morph_s": 0.0, "speed_recoveries": [], "failsafe_steps": 0})
     timings["metrics_s"] = time.perf_counter() - t3
     timings["wall_s"] = time.perf_counter() - t0

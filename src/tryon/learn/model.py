@@ -70,12 +70,13 @@ class DrapeModel:
         """The size's garment (rest shape, panels) with the reference drape's positions."""
         self.size_onehot(size)
         if (gender, size) not in self.garments:
-            raise ModelError(f"the learned {self.garment} model has no {gender} garment in size {size}")
+            raise ModelError(f"the learned {self.garment} model has no {gender} garment in size {size}; use --method simulate")
         return self.garments[(gender, size)]
 
     def prior(self, gender: str, size: str, body_vertices: np.ndarray) -> np.ndarray:
         if (gender, size) not in self.priors:
-            raise ModelError(f"the learned {self.garment} model has no reference for a {gender} body in size {size}")
+            raise ModelError(f"the learned {self.garment} model has no reference for a {gender} body in size {size}; "
+                             "use --method simulate")
         return self.priors[(gender, size)].carry(body_vertices)
 
     def coverage_notes(self, gender: str, height_cm: float, bmi: float) -> list[str]:
@@ -136,10 +137,13 @@ class DrapeModel:
         path = Path(path)
         if not path.is_file():
             raise ModelError(f"no draping model at {path}")
+        import zipfile
+
         try:
-            a = dict(np.load(path, allow_pickle=False))
+            with np.load(path, allow_pickle=False) as z:
+                a = {k: z[k] for k in z.files}
             meta = json.loads(str(a["meta"]))
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
             raise ModelError(f"{path} is not a tryon draping model ({exc})") from exc
         h = GarmentHierarchy.from_arrays({k[2:]: v for k, v in a.items() if k.startswith("h_")})
         priors = {(g, s): SkinPrior.from_arrays(a, f"p_{g}_{s}_") for g, s in meta["priors"]}
@@ -155,8 +159,19 @@ class DrapeModel:
         net = m.build_net()
         state = {k[2:]: torch.from_numpy(np.asarray(v, np.float32) if v.dtype == np.float16 else v)
                  for k, v in a.items() if k.startswith("w_")}
-        net.load_state_dict(state)
+        try:
+            net.load_state_dict(state)
+        except RuntimeError as exc:
+            raise ModelError(f"{path} does not fit this version of tryon's network ({str(exc)[:200]}); retrain it") from exc
         return m
+
+    def check_dataset(self, spec: dict) -> None:
+        """Refuse a dataset whose garment topology or sizes differ from the model's."""
+        mine = self.card.get("manifest", {}).get("spec", {})
+        for key in ("garment", "edge_length", "topology", "sizes"):
+            if key in mine and mine[key] != spec.get(key):
+                raise ModelError(f"the dataset's {key} ({spec.get(key)}) differs from the model's ({mine[key]}); "
+                                 "judge a model on data of its own garment, sizes and edge length")
 
 
 def shipped_model_path(garment: str) -> Path:

@@ -126,7 +126,8 @@ class DrapeNet(nn.Module):
         self.encoder = BodyEncoder(cfg)
         self.decoder = HierarchicalDecoder(cfg, hierarchy)
         self.downs = [sparse(m) for m in hierarchy.down[:cfg.levels - 1]]
-        self.register_buffer("basis", torch.from_numpy(hierarchy.basis[:, :cfg.eigen].astype(np.float32)))
+        cfg.eigen = min(cfg.eigen, hierarchy.basis.shape[1])
+        self.register_buffer("basis", torch.from_numpy(hierarchy.basis[:, :cfg.eigen].astype(np.float32)), persistent=False)
         self.spectral = nn.Sequential(nn.Linear(cfg.latent, cfg.latent), nn.GELU(), nn.Linear(cfg.latent, 3 * cfg.eigen)) \
             if cfg.spectral else None
         self.scale = 0.01  # corrections are learned in cm

@@ -92,9 +92,13 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
 
     if method not in ("learned", "simulate"):
         raise TryonError(f"unknown method {method!r}; use learned or simulate")
+    from tryon.garment.sizes import SIZES
+
     t0 = time.perf_counter()
-    model = DrapeModel.load(model_path) if model_path else load_shipped(garment)
-    sizes = sizes or model.sizes
+    model = None
+    if method == "learned" or not sizes:
+        model = DrapeModel.load(model_path) if model_path else load_shipped(garment)
+    sizes = sorted({s.upper() for s in (sizes or model.sizes)}, key=lambda s: SIZES.index(s) if s in SIZES else 99)
     DrapeRequest(body, garment=garment, size=sizes[0], fabric=fabric).validate()
     person = fit_body(body)
     fit_s = time.perf_counter() - t0

@@ -31,10 +31,9 @@ class Level:
 
     def vertex_uv(self) -> tuple[np.ndarray, np.ndarray]:
         """A (panel, uv) of every vertex: that of the first face corner it appears in."""
-        flat = self.faces.ravel()
-        first = np.full(self.n, -1)
-        order = np.arange(len(flat))[::-1]
-        first[flat[order]] = order  # the smallest corner index wins
+        verts, first = np.unique(self.faces.ravel(), return_index=True)
+        if len(verts) != self.n:
+            raise ValueError(f"{self.n - len(verts)} vertices of the garment level belong to no face")
         return self.face_panel[first // 3], self.corner_uv.reshape(-1, 2)[first]
 
     def edges(self) -> np.ndarray:
@@ -68,11 +67,12 @@ def locate(points_uv: np.ndarray, points_panel: np.ndarray, level: Level) -> tup
         a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
         v0, v1 = b - a, c - a
         det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+        det = np.where(np.abs(det) < 1e-14, np.nan, det)  # a degenerate triangle holds no point
         p = points_uv[q][:, None, :] - a[None]                       # [Q,T,2]
         l1 = (p[..., 0] * v1[None, :, 1] - p[..., 1] * v1[None, :, 0]) / det
         l2 = (v0[None, :, 0] * p[..., 1] - v0[None, :, 1] * p[..., 0]) / det
         bary = np.stack([1 - l1 - l2, l1, l2], -1)                   # [Q,T,3]
-        best = bary.min(-1).argmax(1)
+        best = np.nan_to_num(bary.min(-1), nan=-np.inf).argmax(1)
         bw = np.clip(bary[np.arange(len(q)), best], 0.0, None)
         idx[q] = level.faces[f[best]]
         w[q] = bw / bw.sum(1, keepdims=True)

@@ -18,7 +18,7 @@ from tqdm import tqdm
 from tryon.dataset.loading import load_drape_dataset
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
-from tryon.learn.data import TrainingSet, model_parts, training_set
+from tryon.learn.data import TrainingSet, dataset_key, model_parts, training_set
 from tryon.learn.losses import DrapeLoss, LossWeights
 from tryon.learn.model import DrapeModel, timestamp
 from tryon.learn.network import DrapeNet, NetConfig
@@ -92,7 +92,7 @@ def train_drape(data_dir: str | Path, out: str | Path, config: TrainConfig | Non
     ckpt = out / CHECKPOINT
     if ckpt.exists():
         saved = torch.load(ckpt, weights_only=True)
-        if saved["config"] != json.dumps(config.to_dict(), sort_keys=True) or saved["data"] != len(ts.rows):
+        if saved["config"] != json.dumps(config.to_dict(), sort_keys=True) or saved["data"] != dataset_key(data):
             raise TryonError(f"{ckpt} was made with other settings or data; use another --out or remove it")
         net.load_state_dict(saved["net"])
         opt.load_state_dict(saved["opt"])
@@ -121,6 +121,9 @@ def train_drape(data_dir: str | Path, out: str | Path, config: TrainConfig | Non
             bar.set_postfix(v2v=f"{parts['v2v']:.2f}")
         sched.step()
         val_err = mean_error_cm(predict_set(model, val), val.truth)
+        if not np.isfinite(val_err) or not all(np.isfinite(v) for v in parts_sum.values()):
+            raise TryonError(f"training diverged in epoch {state['epoch'] + 1} (a loss or the validation error is not finite); "
+                             "lower --lr")
         state["epoch"] += 1
         epochs_run += 1
         state["history"].append({"epoch": state["epoch"], "val_mean_error_cm": val_err,
@@ -130,7 +133,7 @@ def train_drape(data_dir: str | Path, out: str | Path, config: TrainConfig | Non
             model.card = {"epoch": state["epoch"]}
             model.save(out / "best.npz")
         torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "rng": torch.get_rng_state(),
-                    "state": json.dumps(state), "config": json.dumps(config.to_dict(), sort_keys=True), "data": len(ts.rows)},
+                    "state": json.dumps(state), "config": json.dumps(config.to_dict(), sort_keys=True), "data": dataset_key(data)},
                    out / (CHECKPOINT + ".tmp"))
         (out / (CHECKPOINT + ".tmp")).replace(ckpt)
         if progress:
@@ -162,7 +165,7 @@ def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config:
         metrics[split] = {"samples": int(k.sum()), "mean_error_cm": float(err.mean()), "p95_error_cm": float(np.percentile(err, 95)),
                           "skinning_mean_error_cm": float(prior.mean())}
     return {"garment": model.garment, "sizes": model.sizes, "trained": timestamp(), "data": str(data_dir),
-            "manifest": json.loads(data.manifest.to_json()), "samples": {s: int((ts.split == s).sum()) for s in set(ts.split.tolist())},
+            "manifest": json.loads(data.manifest.to_json()), "samples": {s: int((ts.split == s).sum()) for s in sorted(set(ts.split.tolist()))},
             "split": data.manifest.split, "train_config": config.to_dict(), "best_epoch": model.card.get("epoch"),
             "epochs": state["epoch"], "train_wall_s_this_run": wall_s, "metrics": metrics,
             "history": state["history"][-200:]}
