@@ -30,10 +30,18 @@ def _run(out: Path, *extra: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
+def _interruptible() -> None:
+    """In the child: SIGINT as a terminal delivers it, whatever this test process inherited
+    or was left with by libraries (an ignored or blocked SIGINT passes on to a child, and
+    the run then finishes and exits 0, as the suite once saw)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _interrupt(out: Path, sig: int) -> None:
     """Start a run and send `sig` as soon as its first checkpoint exists."""
     proc = subprocess.Popen([sys.executable, "-m", "tryon.cli", *ARGS, "--out", str(out)], env=_env(),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=_interruptible)
     checkpoint = out.with_name(out.name + ".partial") / "checkpoint.npz"
     deadline = time.monotonic() + 240
     while not checkpoint.exists():
