@@ -9,8 +9,10 @@
    apart. Vertices still closer to the skin than the clearance are pushed out along the
    skin's normal.
 2. Sewing. The cloth simulator pulls every seam pair together with zero-length springs,
-   with the body as a collision obstacle, gravity off and still-air damping, until the
-   widest seam gap is under a millimetre.
+   with the body as a collision obstacle, self-collision on (a stitched pair counts as
+   one vertex), gravity off and still-air damping, until the widest seam gap is under a
+   millimetre. Sleeves start far enough out along the arms that no panel passes through
+   another, so the sewn garment does not either.
 3. Welding. Seam pairs become single vertices; each face keeps its own pattern
    coordinates (per-corner material coordinates), so the rest shape stays the pattern's.
 """
@@ -26,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 import torch
 
 from tryon.body.pose import BodyPose
@@ -37,7 +40,7 @@ from tryon.io.atomic import atomic_write
 
 log = logging.getLogger(__name__)
 
-DRESS_VERSION = 15
+DRESS_VERSION = 16
 
 
 # --------------------------------------------------------------------------- tubes
@@ -386,6 +389,60 @@ def place_pattern(mesh: GarmentMesh, body: BodyPose, clearance: float = 0.012) -
     return x
 
 
+SLEEVE_SHIFT_STEP = 0.01  # m: sleeves move out along the arm in these steps ...
+SLEEVE_SHIFT_MAX = 0.15   # m: ... until they clear the bodice (sewing pulls them back in)
+
+
+def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: float) -> tuple[np.ndarray, int, float]:
+    """Positions x from `place_pattern`, clear of the skin (`clear_of_skin`), with the sleeves moved out
+    along their arms until no panel passes through another: a sleeve cap placed around
+    the shoulder joint lies partly inside the bodice, and sewing (with self-collision on)
+    cannot undo a crossing it starts with. Returns positions, vertices pushed out of the
+    skin and the sleeves' shift (m)."""
+    from tryon.sim.collision.geometry import mesh_edges
+    from tryon.sim.collision.intersections import edge_face_intersections
+
+    sleeves = [(mesh.panel_of_vertex == k, ArmTube(body, p.placement["limb"], clearance).A)
+               for k, p in enumerate(mesh.pattern.panels) if p.placement.get("part") == "arm"]
+    edges = mesh_edges(mesh.faces)
+    for shift in np.arange(0.0, SLEEVE_SHIFT_MAX + 1e-9, SLEEVE_SHIFT_STEP):
+        moved = x.copy()
+        for sel, axis in sleeves:
+            moved[sel] += shift * axis
+        moved, pushed = clear_of_skin(moved, body, clearance)
+        moved = _unfold(moved, mesh.faces, edges, mesh.panel_of_vertex, body, clearance)
+        if len(edge_face_intersections(moved, edges, moved, mesh.faces, True)) == 0:
+            return moved, pushed, float(shift)
+    raise SimulationError(f"placing {mesh.pattern.name}: the panels still cross each other with the sleeves "
+                          f"{100 * SLEEVE_SHIFT_MAX:.0f} cm out along the arms")
+
+
+def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarray, body: BodyPose, clearance: float,
+            rounds: int = 10) -> np.ndarray:
+    """Folds of a panel through itself that pushing out of the skin made (neighbours
+    pushed to either side of a crease such as the armpit) smoothed away: the vertices of
+    crossing edges and faces and their neighbours take their neighbours' mean, then are
+    pushed out again."""
+    from tryon.sim.collision.intersections import edge_face_intersections
+
+    n = len(x)
+    adj = sp.coo_matrix((np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(n, n)).tocsr()
+    degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)
+    for _ in range(rounds):
+        hits = edge_face_intersections(x, edges, x, faces, True)
+        hits = hits[panel[edges[hits[:, 0], 0]] == panel[faces[hits[:, 1], 0]]]
+        if len(hits) == 0:
+            break
+        near = np.zeros(n, bool)
+        near[edges[hits[:, 0]].ravel()] = True
+        near[faces[hits[:, 1]].ravel()] = True
+        near |= adj @ near > 0
+        x = x.copy()
+        x[near] = (adj @ x)[near] / degree[near, None]
+        x, _ = clear_of_skin(x, body, clearance)
+    return x
+
+
 def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
     """Points closer to the skin than `clearance` (or inside) moved out along the skin's
     normal (`tryon.sim.collision.push_outside`), and how many moved."""
@@ -456,13 +513,18 @@ class DressedGarment:
                    Pattern.from_dict(pattern) if pattern is not None else None, d["seam_vertices"], json.loads(str(d["stats"])))
 
 
+SEW_STALL_STEPS = 20  # a seam gap that closed less than 2 % in this many steps has stalled
+
+
 def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: float = 0.01, max_steps: int = 300,
         tolerance: float = 0.001, stiffness: float = 40.0, max_stiffness: float = 2000.0, max_gap: float = 0.01,
         progress: bool = True) -> tuple[np.ndarray, dict]:
     """Pull the seams shut in simulation; returns panel-vertex positions [N,3] and stats.
     The stitch stiffness grows 3 % a step (up to `max_stiffness`), so the seams close
-    gently first and then tightly against the cloth's own resistance. Seams that end
-    within `max_gap` are welded by the caller; a wider gap is an error."""
+    gently first and then tightly against the cloth's own resistance. Sewing stops when
+    every gap is under `tolerance`, or under `SEAMS_CLOSED` and no longer closing (a
+    coarse neckline against the skin); seams that end within `max_gap` are welded by the
+    caller, a wider gap is an error."""
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
@@ -471,7 +533,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
 
     cloth = ClothMesh(torch.from_numpy(x0), torch.from_numpy(mesh.uv), torch.from_numpy(mesh.faces), name=mesh.pattern.name)
     model = cloth_on_body(cloth, fabric, Obstacle("body", body.vertices, body.faces), DRESSING_THICKNESS,
-                          self_collision=False, still=True, stitches=mesh.stitches, stitch_stiffness=stiffness)
+                          self_collision=True, still=True, stitches=mesh.stitches, stitch_stiffness=stiffness)
     st = mesh.stitches
     gap0 = float(np.linalg.norm(x0[st[:, 0]] - x0[st[:, 1]], axis=1).max()) if len(st) else 0.0
     ramp = {"k": stiffness}
@@ -480,12 +542,15 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
         k, ramp["k"] = ramp["k"], min(max_stiffness, ramp["k"] * 1.03)
         return Control(stitch_stiffness=k)
 
-    seams = {"gap": gap0}
+    seams = {"gap": gap0, "history": []}
 
-    def closed(rec) -> bool:
+    def closed(rec) -> bool:  # shut, or as shut as it gets (a weldable gap that stopped closing)
         x = rec.state.x.numpy()
-        seams["gap"] = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max())
-        return seams["gap"] <= tolerance
+        seams["gap"] = gap = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max())
+        history = seams["history"]
+        history.append(gap)
+        stalled = len(history) > SEW_STALL_STEPS and gap > 0.98 * history[-1 - SEW_STALL_STEPS]
+        return gap <= tolerance or (stalled and gap <= SEAMS_CLOSED)
 
     t0 = time.perf_counter()
     state = model.initial_state()
@@ -535,8 +600,9 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
                   clearance: float = 0.012, progress: bool = True, mesh: GarmentMesh | None = None) -> DressedGarment:
     """Triangulate, place, sew and weld a pattern around a posed body. A placement whose
     seams all start closed (trousers) is welded first and then relaxed with self-collision
-    on, so the garment never passes through itself; otherwise the seams are sewn shut in
-    simulation (self-collision off, since stitched pairs start apart) and then welded.
+    on, so the garment never passes through itself; otherwise the panels start apart
+    (`placed_apart`) and the seams are sewn shut in simulation, with self-collision on
+    (stitched vertices are one vertex to it), and then welded.
     The dressed garment's self-intersections (edge through triangle) are counted in its
     stats: a drape cannot undo them. `mesh` is the pattern's triangulation when the
     caller has one (`transfer_mesh`: one topology for every size)."""
@@ -559,11 +625,12 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
         pos, stats = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name)
         stats.update({"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0})
     else:
-        x, pushed = clear_of_skin(x, body, clearance)
+        x, pushed, shift = placed_apart(x, mesh, body, clearance)
         # a coarse mesh cannot follow the neck's curve everywhere: a neckline stitch can
         # stay a few millimetres open against the skin; welding it moves each side by at
         # most half of `max_gap`
         x, stats = sew(mesh, x, body, fabric, max_gap=max(0.01, 0.5 * edge_length), progress=progress)
+        stats["sleeve_shift_m"] = shift
         pos, faces, corner_uv, group = merge_stitched(mesh, x)
         uv = np.zeros((len(pos), 2))
         uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)

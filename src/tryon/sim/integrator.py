@@ -97,7 +97,8 @@ class ImplicitEulerSolver:
         self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
         self._last_dv: np.ndarray | None = None
         self.collisions = CollisionScene.of(faces, model.edges, self.mass, model.obstacles.faces, model.obstacles.edges,
-                                            model.collision.thickness, self.pinned_mask, model.collision.self_collision)
+                                            model.collision.thickness, self.pinned_mask, model.collision.self_collision,
+                                            stitches=self._stitches)
         self.last_collision: col.CollisionReport | None = None  # the latest response's report, for diagnoses
 
     # ------------------------------------------------------------------ public API

@@ -36,7 +36,8 @@ def state_metrics(model: ClothModel, x: np.ndarray, t: float) -> dict:
     faces = model.faces.numpy()
     edges = model.edges.numpy()
     n_self, n_obst = col.count_intersections(
-        x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges, self_collision=model.collision.self_collision
+        x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges, self_collision=model.collision.self_collision,
+        alias=col.stitch_alias(model.stitches, len(x)),
     )
     dist = col.min_obstacle_distance(x, ob, model.obstacles.faces) if len(ob) else float("inf")
     return {

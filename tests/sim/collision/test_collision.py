@@ -476,3 +476,36 @@ def test_bad_input_raises_mesh_error():
         col.find_proximities(x[:, :2], f, e, *no_obstacle(), H)
     with pytest.raises(MeshError, match="masses"):
         col.resolve_collisions(col.CollisionScene.of(f, e, np.zeros(len(x)), thickness=H), x, x)
+
+
+def test_stitched_vertices_are_one_vertex_to_contact_handling():
+    # a vertical sheet standing 1 mm above a horizontal one, two of its bottom vertices
+    # stitched to the vertices below them: contacts joining stitched vertices are dropped,
+    # the other two bottom vertices keep theirs
+    a = sheet(4, size=0.03)
+    v, f, _ = sheet(4, size=0.03)
+    b = (np.stack([np.full(len(v), 0.005), v[:, 1], v[:, 0] + 0.016], 1), f, None)
+    x, faces, edges = merge(a, b)
+    bottom = 16 + np.nonzero(np.isclose(x[16:, 2], 0.001))[0]
+    below = np.array([int(np.argmin(np.linalg.norm(x[:16] - x[i] + [0, 0, 0.001], axis=1))) for i in bottom])
+    stitches = np.stack([bottom[:2], below[:2]], 1)
+    alias = col.stitch_alias(stitches, len(x))
+    assert np.all(alias[stitches[:, 0]] == alias[stitches[:, 1]]) and len(np.unique(alias)) == 30
+    assert col.stitch_alias(np.zeros((0, 2), np.int64), 4) is None
+    plain = col.find_proximities(x, faces, edges, None, None, None, H)
+    joined = col.find_proximities(x, faces, edges, None, None, None, H, alias=alias)
+    assert 0 < len(joined) < len(plain)
+    kept = {tuple(r) for r in joined.idx}
+    for row, kind in zip(plain.idx, plain.kind):
+        k = 1 if kind == col.VF_SELF else 2  # the vertex, or the first edge
+        joins = np.isin(alias[row[:k]], alias[row[k:]]).any()
+        assert joins != (tuple(row) in kept)  # dropped exactly when it joins stitched vertices
+    assert np.isin(joined.idx, bottom[2:]).any()
+    # lowering the sheet through the other: only the unstitched vertices' impacts remain
+    x1 = x.copy()
+    x1[16:, 2] -= 0.002
+    hit = col.find_impacts(x, x1, faces, edges, None, None, None, None, H, alias=alias)
+    assert len(hit) > 0 and not np.isin(alias[hit.idx], alias[stitches[:, 0]]).all(axis=1).any()
+    n_plain, _ = col.count_intersections(x1, faces, edges, *no_obstacle())
+    n_joined, _ = col.count_intersections(x1, faces, edges, *no_obstacle(), alias=alias)
+    assert 0 < n_joined < n_plain

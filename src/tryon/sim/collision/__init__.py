@@ -22,6 +22,7 @@ from tryon.sim.collision.contacts import (
     VF_OBSTACLE,
     VF_SELF,
     Contacts,
+    stitch_alias,
 )
 from tryon.sim.collision.impact_zones import CollisionReport, resolve_collisions, rigid_impact_zone_fallback
 from tryon.sim.collision.intersections import (
@@ -57,6 +58,7 @@ __all__ = [
     "overlapping_pairs",
     "QPResult",
     "solve_projection",
+    "stitch_alias",
     "resolve_collisions",
     "rigid_impact_zone_fallback",
     "signed_obstacle_distance",

@@ -233,6 +233,7 @@ def find_impacts(
     thickness: float,
     self_collision: bool = True,
     eps: float = CCD_EPS,
+    alias: np.ndarray | None = None,
 ) -> Contacts:
     """Vertex-face and edge-edge impacts while cloth moves linearly x0 -> x1 and the
     obstacle ob0 -> ob1: for every primitive pair whose swept boxes overlap, the earliest
@@ -241,7 +242,8 @@ def find_impacts(
     (`time` = t, `d` = gap at t), n oriented towards the side the primitives came from.
 
     `thickness` is the contact thickness h of the scene; CCD itself looks for touching
-    (distance < eps, default 1e-6 m, at most h / 10), not for proximity."""
+    (distance < eps, default 1e-6 m, at most h / 10), not for proximity. Vertices sharing
+    an `alias` (stitched ones) count as one vertex."""
     x0, faces, edges, ob0, ob_faces, ob_edges = prepare_inputs(x0, faces, edges, ob0, ob_faces, ob_edges)
     x1 = as_points(x1, "cloth end positions")
     ob1 = as_points(ob1 if ob1 is not None else np.zeros((0, 3)), "obstacle end positions")
@@ -259,7 +261,8 @@ def find_impacts(
     parts = []
     if self_collision:
         pairs = overlapping_pairs(tris)
-        parts.append(run_driver(self_impacts, pairs, x0, x1, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, eps))
+        parts.append(run_driver(self_impacts, pairs, x0, x1, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, eps)
+                     .without_joined(alias))
     if len(ob0) and len(ob_faces):
         ob_topo = mesh_topology(ob_faces, ob_edges, len(ob0))
         ob_bx = mesh_boxes(ob0, ob_faces, ob_edges, eps, ob1)

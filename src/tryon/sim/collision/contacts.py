@@ -87,9 +87,41 @@ class Contacts:
         ob = None if ob is None else as_points(ob, "ob")
         return np.einsum("ck,ckd,cd->c", self.w, self.points(x, ob), self.n)
 
+    def without_joined(self, alias: np.ndarray | None) -> "Contacts":
+        """The contacts left after dropping self contacts between vertices that `alias`
+        joins (stitched vertices share an alias: to contact handling they are one vertex,
+        as two faces sharing a vertex are never in contact)."""
+        if alias is None or len(self) == 0:
+            return self
+        own = (self.kind == VF_SELF) | (self.kind == EE_SELF)
+        if not own.any():
+            return self
+        a = alias[np.where(self.idx >= 0, self.idx, 0)]
+        side_a = np.where((self.kind == VF_SELF)[:, None], a[:, :1].repeat(2, 1), a[:, :2])
+        side_b = np.where((self.kind == VF_SELF)[:, None], a[:, 1:], np.concatenate([a[:, 2:], a[:, 2:3]], 1))
+        joined = (side_a[:, :, None] == side_b[:, None, :]).any(axis=(1, 2)) & own
+        return self.select(~joined) if joined.any() else self
+
     def counts(self) -> dict[str, int]:
         """Number of contacts of each kind."""
         return {name: int(np.sum(self.kind == k)) for k, name in enumerate(KIND_NAMES)}
+
+
+def stitch_alias(stitches: Any, n_vertices: int) -> np.ndarray | None:
+    """One id per cloth vertex, shared by vertices that stitches join (directly or through
+    a chain); None without stitches."""
+    if stitches is None:
+        return None
+    if hasattr(stitches, "detach"):
+        stitches = stitches.detach().cpu().numpy()
+    st = np.asarray(stitches, np.int64).reshape(-1, 2)
+    if len(st) == 0:
+        return None
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    graph = sp.coo_matrix((np.ones(len(st)), (st[:, 0], st[:, 1])), shape=(n_vertices, n_vertices))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 # --------------------------------------------------------------------------- input checks

@@ -37,25 +37,32 @@ def edge_face_hits(pairs, xe, edges, xf, faces, same, tol):
     return hit
 
 
-def edge_face_intersections(x, edges, xf, faces, same: bool) -> np.ndarray:
-    """Pairs [K,2] (edge id, face id) of intersecting edges and faces, found through BVHs."""
+def edge_face_intersections(x, edges, xf, faces, same: bool, alias: np.ndarray | None = None) -> np.ndarray:
+    """Pairs [K,2] (edge id, face id) of intersecting edges and faces, found through BVHs;
+    with same=True, an edge and a face whose vertices share an `alias` (stitched vertices)
+    do not count."""
     if len(edges) == 0 or len(faces) == 0:
         return np.zeros((0, 2), np.int64)
     segs = BVH.build(*element_boxes(x, edges, 0.0))
     tris = BVH.build(*element_boxes(xf, faces, 0.0))
     pairs = overlapping_pairs(segs, tris)
-    return pairs[edge_face_hits(pairs, x, edges, xf, faces, same, CROSS_TOL)]
+    hits = pairs[edge_face_hits(pairs, x, edges, xf, faces, same, CROSS_TOL)]
+    if same and alias is not None and len(hits):
+        a, b = alias[edges[hits[:, 0]]], alias[faces[hits[:, 1]]]
+        hits = hits[~(a[:, :, None] == b[:, None, :]).any(axis=(1, 2))]
+    return hits
 
 
 def count_intersections(
-    x: Any, faces: Any, edges: Any, ob: Any, ob_faces: Any, ob_edges: Any, self_collision: bool = True
+    x: Any, faces: Any, edges: Any, ob: Any, ob_faces: Any, ob_edges: Any, self_collision: bool = True,
+    alias: np.ndarray | None = None,
 ) -> tuple[int, int]:
     """(self, obstacle) counts of intersecting (edge, triangle) pairs: cloth edges through
     cloth faces they do not share a vertex with (when self_collision), plus cloth edges
     through obstacle faces and obstacle edges through cloth faces."""
     x, faces, edges, ob, ob_faces, ob_edges = prepare_inputs(x, faces, edges, ob, ob_faces, ob_edges)
     check_finite(x, "cloth positions")
-    n_self = len(edge_face_intersections(x, edges, x, faces, True)) if self_collision else 0
+    n_self = len(edge_face_intersections(x, edges, x, faces, True, alias)) if self_collision else 0
     n_ob = 0
     if len(ob) and len(ob_faces):
         n_ob += len(edge_face_intersections(x, edges, ob, ob_faces, False))

@@ -323,12 +323,13 @@ def find_proximities(
     ob_edges: Any,
     thickness: float,
     self_collision: bool = True,
+    alias: np.ndarray | None = None,
 ) -> Contacts:
     """All vertex-face and edge-edge pairs closer than `thickness` (criteria and normal
     orientation in the module docstring), found by traversing BVHs over face boxes
     inflated by thickness / 2, each face testing the vertices and edges it owns. Kinds:
     VF_SELF, EE_SELF (when self_collision), VF_OBSTACLE, FV_OBSTACLE, EE_OBSTACLE; d is the
-    gap at x."""
+    gap at x. Vertices sharing an `alias` (stitched ones) count as one vertex."""
     x, faces, edges, ob, ob_faces, ob_edges = prepare_inputs(x, faces, edges, ob, ob_faces, ob_edges)
     check_finite(x, "cloth positions")
     check_finite(ob, "obstacle positions")
@@ -339,7 +340,8 @@ def find_proximities(
     parts = []
     if self_collision:
         pairs = overlapping_pairs(tris)
-        parts.append(run_driver(self_proximities, pairs, x, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, h))
+        parts.append(run_driver(self_proximities, pairs, x, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, h)
+                     .without_joined(alias))
     if len(ob) and len(ob_faces):
         ob_topo = mesh_topology(ob_faces, ob_edges, len(ob))
         ob_bx = mesh_boxes(ob, ob_faces, ob_edges, h)

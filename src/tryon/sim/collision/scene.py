@@ -9,14 +9,15 @@ from typing import Any
 
 import numpy as np
 
-from tryon.sim.collision.contacts import check_thickness
+from tryon.sim.collision.contacts import check_thickness, stitch_alias
 
 
 @dataclass(frozen=True)
 class CollisionScene:
     """Cloth topology (faces [F,3], edges [E,2]), vertex masses [N] (kg) and pinned mask
     [N], the obstacles' merged topology (ob_faces, ob_edges), the contact thickness (m) and
-    whether the cloth collides with itself."""
+    whether the cloth collides with itself; `alias`: one id per cloth vertex, shared by
+    stitched vertices, which contact handling treats as one vertex (None: no stitches)."""
 
     faces: np.ndarray
     edges: np.ndarray
@@ -26,11 +27,14 @@ class CollisionScene:
     ob_edges: np.ndarray
     thickness: float
     self_collision: bool = True
+    alias: np.ndarray | None = None
 
     @classmethod
     def of(cls, faces: Any, edges: Any, masses: Any, ob_faces: Any = None, ob_edges: Any = None,
-           thickness: float = 0.005, pinned_mask: Any = None, self_collision: bool = True) -> "CollisionScene":
-        """A scene from numpy or torch arrays (no obstacles when ob_faces is None)."""
+           thickness: float = 0.005, pinned_mask: Any = None, self_collision: bool = True,
+           stitches: Any = None) -> "CollisionScene":
+        """A scene from numpy or torch arrays (no obstacles when ob_faces is None); stitched
+        vertex pairs [S,2] are one vertex to contact handling."""
         def arr(a: Any, dtype, shape: tuple) -> np.ndarray:
             if a is None:
                 return np.zeros(shape, dtype)
@@ -42,11 +46,12 @@ class CollisionScene:
         pinned = np.zeros(len(masses), bool) if pinned_mask is None else arr(pinned_mask, bool, (0,)).reshape(-1)
         return cls(arr(faces, np.int64, (0, 3)), arr(edges, np.int64, (0, 2)), masses, pinned,
                    arr(ob_faces, np.int64, (0, 3)), arr(ob_edges, np.int64, (0, 2)), check_thickness(thickness),
-                   bool(self_collision))
+                   bool(self_collision), stitch_alias(stitches, len(masses)))
 
     def proximities(self, x: np.ndarray, ob: np.ndarray, self_collision: bool | None = None):
         """Contacts within the thickness at positions x, obstacles at ob (`find_proximities`)."""
         from tryon.sim.collision.proximity import find_proximities
 
         return find_proximities(x, self.faces, self.edges, ob, self.ob_faces, self.ob_edges, self.thickness,
-                                self_collision=self.self_collision if self_collision is None else self_collision)
+                                self_collision=self.self_collision if self_collision is None else self_collision,
+                                alias=self.alias)
