@@ -141,3 +141,51 @@ def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tin
 
     assert Image.open(out / "sizes.png").size[0] > 1000
     assert "recommended size" in capsys.readouterr().out
+
+
+def test_ablations_take_one_feature_away_each_and_are_judged_alike(tiny, tmp_path):
+    from tryon.bench.ablations import BY_NAME, ablation_config, ablation_table, run_ablations
+
+    full = TrainConfig()
+    assert ablation_config("no-edge", full).weights.edge == 0 and full.weights.edge > 0  # the base is not changed
+    assert ablation_config("one-level", full).net.levels == 1 and not ablation_config("no-spectral-branch", full).net.spectral
+    with pytest.raises(Exception, match="unknown ablation"):
+        ablation_config("no-such-thing", full)
+    data = load_drape_dataset(tiny)
+    split = next(s for s in ("test", "val", "train") if len(data.rows(s)))
+    out = tmp_path / "abl.json"
+    res = run_ablations(out, tiny, ["full", "one-level", "fixed-aggregation"], epochs=2, progress=False, split=split)
+    recs = {r["ablation"]: r for r in res["records"]}
+    assert set(recs) == {"full", "one-level", "fixed-aggregation"} and recs["full"]["error_vs_full"] == 1.0
+    for r in recs.values():
+        assert r["split"] == split and 0 < r["mean_error_cm"] <= r["p95_error_cm"] and r["lacks"] == BY_NAME[r["ablation"]].what
+    one = DrapeModel.load(tmp_path / "abl-models" / "one-level" / "model.npz")
+    fixed = DrapeModel.load(tmp_path / "abl-models" / "fixed-aggregation" / "model.npz").build_net()
+    assert len(one.build_net().decoder.blocks) == 1
+    assert not any("theta" in name for name, _ in fixed.named_parameters())
+    assert "| one-level |" in ablation_table(res["records"])
+
+
+def test_self_correction_labels_more_bodies_by_refinement_and_trains_on_both(tiny, tmp_path):
+    from tryon.dataset import load_drape_datasets
+    from tryon.learn.selfcorrect import REFINED_SEED_OFFSET, make_refined_dataset
+
+    train_drape(tiny, tmp_path / "m", TrainConfig(epochs=2, batch=2), progress=False)
+    model = tmp_path / "m" / "model.npz"
+    store, report = make_refined_dataset(tiny, model, 1, tmp_path / "refined", progress=False)
+    refined = load_drape_dataset(store.folder)
+    source = load_drape_dataset(tiny)
+    assert report.made == 2 and refined.manifest.spec["truth"]["method"] == "learned+refine"
+    assert refined.manifest.seed == source.manifest.seed + REFINED_SEED_OFFSET
+    assert set(refined.arrays["split"]) <= {"train", "extrapolation"}
+    ok = refined.rows()
+    assert len(ok) >= 1 and np.all(refined.arrays["penetration_pct"][ok] == 0)
+    assert np.array_equal(refined.faces, source.faces)
+    # resuming makes nothing new
+    assert make_refined_dataset(tiny, model, 1, tmp_path / "refined", progress=False)[1].made == 0
+    both = load_drape_datasets([tiny, store.folder])
+    assert len(both) == len(source) + len(refined) and len(np.unique(both.arrays["unit"])) == len(both)
+    assert both.manifest.notes["merged"][0]["spec"]["truth"]["method"] == "learned+refine"
+    m = train_drape([tiny, store.folder], tmp_path / "m2", TrainConfig(epochs=1, batch=2), progress=False)
+    assert m.card["samples"]["train"] == len(both.rows("train"))
+    assert "refined" in (tmp_path / "m2" / "MODEL_CARD.md").read_text()

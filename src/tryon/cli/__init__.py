@@ -268,6 +268,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise TryonError("tryon bench learned needs --data DATASET (a drape dataset from tryon dataset drape)")
         run_learned_bench(args.json, args.data, model_path=args.model, quick=args.quick)
         return 0
+    if args.what == "ablations":
+        from tryon.bench.ablations import run_ablations
+
+        if not args.data:
+            raise TryonError("tryon bench ablations needs --data DATASET (a drape dataset from tryon dataset drape)")
+        run_ablations(args.json, args.data, names=args.only, epochs=args.epochs or (4 if args.quick else 40))
+        return 0
     if args.what == "drape" and args.matrix:
         from tryon.bench.drape_matrix import run_drape_matrix
 
@@ -278,7 +285,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         run_drape_bench(args.json, quick=args.quick)
         return 0
-    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness, drape, grad, parallel, learned")
+    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness, drape, grad, parallel, learned, ablations")
 
 
 def _parallel_args(p: argparse.ArgumentParser) -> None:
@@ -401,7 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(func=_cmd_fabrics)
 
     b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")
-    b.add_argument("what", choices=["sim", "robustness", "drape", "grad", "parallel", "learned"])
+    b.add_argument("what", choices=["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations"])
     b.add_argument("--json", default="bench.json", help="output JSON path")
     b.add_argument("--quick", action="store_true", help="fewer steps (smoke run)")
     b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
@@ -410,6 +417,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
     b.add_argument("--data", help="learned: the drape dataset whose test and extrapolation splits are judged")
     b.add_argument("--model", help="learned: a model file instead of the shipped one")
+    b.add_argument("--only", nargs="+", metavar="VARIANT", help="ablations: these variants only (default: all)")
+    b.add_argument("--epochs", type=int, help="ablations: epochs per variant (default 40; --quick 4)")
     b.add_argument("--matrix", action="store_true",
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)

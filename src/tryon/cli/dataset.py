@@ -35,6 +35,25 @@ def _cmd_dataset_pack(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset_refine(args: argparse.Namespace) -> int:
+    from tryon.dataset import load_drape_dataset
+    from tryon.io.atomic import check_output_dir
+    from tryon.learn.model import shipped_model_path
+    from tryon.learn.selfcorrect import make_refined_dataset
+
+    check_output_dir(args.out, force=args.force)
+    model = args.model or shipped_model_path("tshirt")
+    store, report = make_refined_dataset(args.source, model, args.count, args.out, seed=args.seed, workers=args.workers,
+                                         ray_address=args.ray_address, force=args.force, progress=not args.quiet,
+                                         limit=args.limit)
+    data = load_drape_dataset(store.folder)
+    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
+                      "wall_s": round(report.wall_s, 1), "samples_per_core_hour": round(report.samples_per_core_hour, 1),
+                      **data.summary()}, indent=1))
+    print(f"refined dataset: {store.folder}; train on it with tryon train drape --data {args.source} {store.folder}")
+    return 0
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register `tryon dataset ...` on the `tryon` parser."""
     d = sub.add_parser("dataset", help="make datasets for the learned systems (resumable, Ray)")
@@ -58,6 +77,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     p.set_defaults(func=_cmd_dataset_drape)
+    r = kinds.add_parser("refine", help="self-correction: a model's predictions on more bodies, refined by physics, "
+                                        "as a drape dataset to train on with the simulated one")
+    r.add_argument("--from", dest="source", required=True, help="the simulated drape dataset the model was trained on")
+    r.add_argument("--model", help="model file (default: the shipped T-shirt model)")
+    r.add_argument("--count", type=int, default=100, help="bodies (samples per size)")
+    r.add_argument("--seed", type=int, help="body seed (default: the source's + 1000, so no body repeats)")
+    r.add_argument("--limit", type=int, help="make at most this many missing samples in this run (the rest on resume)")
+    r.add_argument("--out", required=True, help="dataset folder; an existing one with the same settings is resumed")
+    r.add_argument("--workers", type=int, default=1, help="Ray workers (1: in this process)")
+    r.add_argument("--ray-address", help="join a Ray cluster (host:port) instead of starting a local one")
+    r.add_argument("--quiet", action="store_true")
+    r.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    r.set_defaults(func=_cmd_dataset_refine)
     k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control")
     k.add_argument("dataset", help="dataset folder")
     k.add_argument("--out", required=True, help="folder of the copy")

@@ -13,7 +13,7 @@ def _cmd_train_drape(args: argparse.Namespace) -> int:
     if not 1 <= args.epochs <= 10_000 or not 1 <= args.batch <= 1024 or not 0 < args.lr < 1:
         raise TryonError("give 1-10000 epochs, a batch of 1-1024 and a learning rate between 0 and 1")
     config = TrainConfig(epochs=args.epochs, batch=args.batch, lr=args.lr, seed=args.seed)
-    model = train_drape(args.data, args.out, config, progress=not args.quiet, force=args.force)
+    model = train_drape(list(args.data), args.out, config, progress=not args.quiet, force=args.force)
     print(json.dumps({"model": f"{args.out}/model.npz", "best_epoch": model.card["best_epoch"],
                       "metrics": model.card["metrics"]}, indent=1))
     return 0
@@ -24,7 +24,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     t = sub.add_parser("train", help="train a learned model (checkpoints every epoch, resumes)")
     kinds = t.add_subparsers(dest="kind", required=True)
     p = kinds.add_parser("drape", help="the draping network on a drape dataset (tryon dataset drape)")
-    p.add_argument("--data", required=True, help="drape dataset folder")
+    p.add_argument("--data", required=True, nargs="+", metavar="DIR",
+                   help="drape dataset folder(s): a simulated set, then any refined sets (tryon dataset refine) to add")
     p.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, checkpoint.pt")
     p.add_argument("--epochs", type=int, default=60)
     p.add_argument("--batch", type=int, default=4)

@@ -197,7 +197,7 @@ def drape_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit:
     req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=spec["fabric"], edge_length=spec["edge_length"],
                        **spec["drape"])
     n = len(ref.garment.vertices)
-    out = _sample_header(manifest, body, size, unit)
+    out = sample_header(manifest, body, size, unit)
     try:
         x, _, _, stats, solver = simulate_drape(req, ref.garment, ref.pose(), target, progress=False)
     except TryonError as exc:  # the sample is recorded as failed; the dataset goes on
@@ -224,7 +224,7 @@ def shape_params(vector: np.ndarray) -> ShapeParams:
     return ShapeParams(**ph, local=dict(zip(LOCAL_CHANGES, (float(v) for v in vector[len(PHENOTYPES):]))))
 
 
-def _sample_header(manifest: Manifest, body: BodySample, size: str, unit: int) -> dict[str, np.ndarray]:
+def sample_header(manifest: Manifest, body: BodySample, size: str, unit: int) -> dict[str, np.ndarray]:
     body_index, _ = unit_of(manifest, unit)
     return {"body": np.asarray(body_index), "size": np.asarray(manifest.spec["sizes"].index(size)),
             "gender": np.asarray(GENDER_CODE[body.gender]), "height_cm": np.asarray(body.height_cm),

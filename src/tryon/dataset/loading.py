@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -74,6 +75,42 @@ def load_drape_dataset(folder: str | Path) -> DrapeDataset:
     return DrapeDataset(manifest, arrays, faces, refs)
 
 
+UNIT_STRIDE = 100_000_000  # the k-th merged dataset's units (and bodies) are offset by k times this
+
+
+def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
+    """Several drape datasets of one garment topology trained on together (a simulated set
+    and the refined drapes of `tryon dataset refine`): their samples in one table, units
+    and bodies offset per dataset so they stay distinct; the first one's references and
+    manifest, the others' manifests in `manifest.notes["merged"]`."""
+    import copy
+
+    sets = [load_drape_dataset(f) for f in folders]
+    if len(sets) == 1:
+        return sets[0]
+    first = sets[0]
+    same = ("garment", "sizes", "edge_length", "topology", "fabric")
+    for f, d in zip(folders[1:], sets[1:]):
+        diff = [k for k in same if d.manifest.spec.get(k) != first.manifest.spec.get(k)]
+        if diff or d.faces.shape != first.faces.shape or not np.array_equal(d.faces, first.faces):
+            raise DatasetError(f"{f} cannot be trained on with {folders[0]}: "
+                               f"{', '.join(diff) if diff else 'the garment topology'} differ")
+    keys = set(first.arrays)
+    for d in sets[1:]:
+        keys &= set(d.arrays)
+    arrays = {}
+    for k in keys:
+        parts = []
+        for i, d in enumerate(sets):
+            a = d.arrays[k]
+            parts.append(a + i * UNIT_STRIDE if k in ("unit", "body") else a)
+        arrays[k] = np.concatenate(parts)
+    manifest = copy.deepcopy(first.manifest)
+    manifest.notes = dict(manifest.notes, merged=[json.loads(d.manifest.to_json()) | {"folder": str(f)}
+                                                  for f, d in zip(folders[1:], sets[1:])])
+    return DrapeDataset(manifest, arrays, first.faces, first.references)
+
+
 def pack_dataset(src: str | Path, dst: str | Path, force: bool = False) -> Path:
     """A compact copy of a dataset to keep in version control: garment vertices as
     float16 (0.5 mm steps at 1 m, well below a drape's noise), everything else as it
@@ -100,4 +137,4 @@ def pack_dataset(src: str | Path, dst: str | Path, force: bool = False) -> Path:
     return out
 
 
-__all__ = ["make_drape_dataset", "load_drape_dataset", "pack_dataset", "DrapeDataset", "Reference"]
+__all__ = ["make_drape_dataset", "load_drape_dataset", "load_drape_datasets", "pack_dataset", "DrapeDataset", "Reference"]

@@ -91,6 +91,7 @@ class DrapeLoss:
                   for p, t, e, n in zip(preds, truths, self.edges, self.ns))
         parts["laplacian"] = lap / len(preds)
         parts["spectral"] = CM * torch.einsum("nk,bnd->bkd", self.basis, x - y).abs().mean()
-        parts["levels"] = sum(CM * (p - t).norm(dim=-1).mean() for p, t in zip(preds[1:], truths[1:])) / max(1, len(preds) - 1)
+        parts["levels"] = sum((CM * (p - t).norm(dim=-1).mean() for p, t in zip(preds[1:], truths[1:])),
+                              torch.zeros(())) / max(1, len(preds) - 1)
         total = sum(getattr(w, k) * v for k, v in parts.items())
         return total, {k: float(v.detach()) for k, v in parts.items()}

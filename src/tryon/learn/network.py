@@ -32,6 +32,7 @@ class NetConfig:
     eigen: int = 128
     spectral: bool = True
     levels: int = 4
+    learned_aggregation: bool = True  # False: every neighbour weighs 1 / degree, fixed (an ablation)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -53,13 +54,17 @@ def apply_sparse(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 class GraphConv(nn.Module):
     """y_i = sum_j theta_ij (W x_j) + b over i's mesh neighbours and itself."""
 
-    def __init__(self, edges: np.ndarray, n: int, cin: int, cout: int):
+    def __init__(self, edges: np.ndarray, n: int, cin: int, cout: int, learned: bool = True):
         super().__init__()
         e = np.concatenate([edges, edges[:, ::-1], np.repeat(np.arange(n)[:, None], 2, 1)])
         deg = np.bincount(e[:, 0], minlength=n)
         self.register_buffer("dst", torch.from_numpy(e[:, 0].copy()))
         self.register_buffer("src", torch.from_numpy(e[:, 1].copy()))
-        self.theta = nn.Parameter(torch.from_numpy((1.0 / deg[e[:, 0]]).astype(np.float32)))
+        theta = torch.from_numpy((1.0 / deg[e[:, 0]]).astype(np.float32))
+        if learned:
+            self.theta = nn.Parameter(theta)
+        else:
+            self.register_buffer("theta", theta)
         self.lin = nn.Linear(cin, cout)
         self.n = n
 
@@ -97,8 +102,9 @@ class HierarchicalDecoder(nn.Module):
         self.heads = nn.ModuleList()
         for k, level in enumerate(lv):
             cin = (w if k == len(lv) - 1 else 2 * w) + 3 + cfg.embed
-            self.blocks.append(nn.ModuleList([GraphConv(level.edges(), level.n, cin, w),
-                                              GraphConv(level.edges(), level.n, w, w)]))
+            learned = cfg.learned_aggregation
+            self.blocks.append(nn.ModuleList([GraphConv(level.edges(), level.n, cin, w, learned),
+                                              GraphConv(level.edges(), level.n, w, w, learned)]))
             self.heads.append(nn.Linear(w, 3))
 
     def forward(self, latent: torch.Tensor, priors: list[torch.Tensor]) -> list[torch.Tensor]:

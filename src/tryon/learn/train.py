@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from tryon.dataset.loading import load_drape_dataset
+from tryon.dataset.loading import load_drape_datasets
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.learn.data import TrainingSet, dataset_key, model_parts, training_set
@@ -60,18 +60,21 @@ def predict_set(model: DrapeModel, ts: TrainingSet, batch: int = 16) -> np.ndarr
     return np.concatenate(out) if out else np.zeros((0, model.hierarchy.n, 3), np.float32)
 
 
-def train_drape(data_dir: str | Path, out: str | Path, config: TrainConfig | None = None, progress: bool = True,
+def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfig | None = None, progress: bool = True,
                 max_epochs_this_run: int | None = None, force: bool = False) -> DrapeModel:
-    """Train (or resume training) a draping model on the dataset in `data_dir`; the model
-    file is `out/model.npz`, its card `out/model_card.json`. A folder with a checkpoint
-    of the same settings and data resumes; any other folder tryon wrote is started over."""
+    """Train (or resume training) a draping model on the dataset in `data_dir` (or on
+    several of one garment topology: a list, the first one's references, see
+    `load_drape_datasets`); the model file is `out/model.npz`, its card
+    `out/model_card.json`. A folder with a checkpoint of the same settings and data
+    resumes; any other folder tryon wrote is started over."""
     from tryon.io.atomic import claim_work_dir, is_owned
 
     config = config or TrainConfig()
     out = Path(out)
     claim_work_dir(out, resume=(out / CHECKPOINT).exists() and is_owned(out), force=force)
-    data_dir = Path(data_dir)
-    data = load_drape_dataset(data_dir)
+    folders = [Path(d) for d in (data_dir if isinstance(data_dir, (list, tuple)) else [data_dir])]
+    data_dir = folders[0]
+    data = load_drape_datasets(folders)
     if len(data.rows("train")) < 2:
         raise TryonError(f"{data_dir} has {len(data.rows('train'))} good training samples; make more with tryon dataset drape")
     hierarchy, priors, region = model_parts(data, data_dir, config.net.levels, config.net.eigen)
@@ -171,6 +174,17 @@ def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config:
             "history": state["history"][-200:]}
 
 
+def _merged_lines(manifest: dict) -> list[str]:
+    """Card lines for the refined sets trained on too (self-correction)."""
+    lines = []
+    for m in manifest.get("notes", {}).get("merged", []):
+        truth = m["spec"].get("truth", {})
+        lines.append(f"- Plus {m['folder']}: {m['count']} drapes of bodies drawn with seed {m['seed']}, ground truth "
+                     f"{truth.get('method', 'simulated')}" + (f" (refined predictions of model {truth['model_sha1']})"
+                                                               if "model_sha1" in truth else "") + "; they train only.")
+    return lines
+
+
 def card_markdown(card: dict) -> str:
     """The model card for people: what the model is, its data, its split and its numbers."""
     spec = card["manifest"]["spec"]
@@ -187,6 +201,7 @@ def card_markdown(card: dict) -> str:
              + ", ".join(f"{g} {h[0]:g}-{h[1]:g} cm" for g, h in r["height_cm"].items()) + f", age {r['age_years'][0]:g}-{r['age_years'][1]:g}.",
              f"- Split by body ({card['split']['rule']}): " + ", ".join(f"{k} {v}" for k, v in sorted(card["samples"].items()))
              + f"; extrapolation = BMI >= {card['split']['extrapolation_bmi']:g}. Selected on: {card.get('selected_on', 'val')}.",
+             *_merged_lines(card["manifest"]),
              "", "## Metrics (vertex error against the simulated drape)", "",
              "| split | samples | mean cm | p95 cm | skinning baseline mean cm |", "|---|---:|---:|---:|---:|"]
     for split, m in sorted(card["metrics"].items()):
