@@ -76,13 +76,16 @@ def load_drape_dataset(folder: str | Path) -> DrapeDataset:
 
 
 UNIT_STRIDE = 100_000_000  # the k-th merged dataset's units (and bodies) are offset by k times this
+REQUIRED_KEYS = {"unit", "body", "x", "ok", "split", "gender", "size", "shape_params", "settled", "wall_s",
+                 "penetration_pct", "bmi", "height_cm"}
 
 
 def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
     """Several drape datasets of one garment topology trained on together (a simulated set
-    and the refined drapes of `tryon dataset refine`): their samples in one table, units
-    and bodies offset per dataset so they stay distinct; the first one's references and
-    manifest, the others' manifests in `manifest.notes["merged"]`."""
+    and the refined drapes of `tryon dataset refine`): the first one's samples and the
+    others' training samples in one table, units and bodies offset per dataset so they stay
+    distinct; the first one's references and manifest, the others' manifests in
+    `manifest.notes["merged"]`."""
     import copy
 
     sets = [load_drape_dataset(f) for f in folders]
@@ -96,13 +99,19 @@ def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
             raise DatasetError(f"{f} cannot be trained on with {folders[0]}: "
                                f"{', '.join(diff) if diff else 'the garment topology'} differ")
     keys = set(first.arrays)
-    for d in sets[1:]:
+    for f, d in zip(folders, sets):
+        missing = REQUIRED_KEYS - set(d.arrays)
+        if missing:
+            raise DatasetError(f"{f} lacks the sample arrays {sorted(missing)}; make it again with this version")
         keys &= set(d.arrays)
+    # the later sets only train: their held-out bodies (extrapolation) would mix another
+    # ground truth into the first set's evaluation splits
+    keep = [np.ones(len(first), bool)] + [d.arrays["split"] == "train" for d in sets[1:]]
     arrays = {}
     for k in keys:
         parts = []
-        for i, d in enumerate(sets):
-            a = d.arrays[k]
+        for i, (d, rows) in enumerate(zip(sets, keep)):
+            a = d.arrays[k][rows]
             parts.append(a + i * UNIT_STRIDE if k in ("unit", "body") else a)
         arrays[k] = np.concatenate(parts)
     manifest = copy.deepcopy(first.manifest)

@@ -404,15 +404,18 @@ def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: fl
 
     sleeves = [(mesh.panel_of_vertex == k, ArmTube(body, p.placement["limb"], clearance).A)
                for k, p in enumerate(mesh.pattern.panels) if p.placement.get("part") == "arm"]
+    from tryon.sim.collision import stitch_alias
+
     edges = mesh_edges(mesh.faces)
+    alias = stitch_alias(mesh.stitches, len(x))
     for shift in np.arange(0.0, SLEEVE_SHIFT_MAX + 1e-9, SLEEVE_SHIFT_STEP):
         moved = x.copy()
         for sel, axis in sleeves:
             moved[sel] += shift * axis
         moved, pushed = clear_of_skin(moved, body, clearance)
         moved = _unfold(moved, mesh.faces, edges, mesh.panel_of_vertex, body, clearance)
-        if len(edge_face_intersections(moved, edges, moved, mesh.faces, True)) == 0:
-            return moved, pushed, float(shift)
+        if not sleeves or len(edge_face_intersections(moved, edges, moved, mesh.faces, True, alias)) == 0:
+            return moved, pushed, float(shift)  # without sleeves: nothing to move (a crossing is counted after sewing)
     raise SimulationError(f"placing {mesh.pattern.name}: the panels still cross each other with the sleeves "
                           f"{100 * SLEEVE_SHIFT_MAX:.0f} cm out along the arms")
 

@@ -66,7 +66,11 @@ def model_parts(data: DrapeDataset, folder: Path, levels: int = 4, eigen: int = 
 
 def dataset_key(data: DrapeDataset) -> str:
     units = np.sort(data.arrays["unit"])
-    return hashlib.sha1(units.tobytes() + json.dumps(data.manifest.spec, sort_keys=True).encode()).hexdigest()[:12]
+    h = hashlib.sha1(units.tobytes() + json.dumps(data.manifest.spec, sort_keys=True).encode())
+    merged = data.manifest.notes.get("merged")
+    if merged:  # sets trained on together: which ones, not only how many samples
+        h.update(json.dumps([[m["seed"], m["count"], m["spec"]] for m in merged], sort_keys=True).encode())
+    return h.hexdigest()[:12]
 
 
 def training_set(data: DrapeDataset, priors: dict, region: np.ndarray, cache: Path | None = None,

@@ -40,6 +40,13 @@ class TrainConfig:
                 "weights": self.weights.to_dict(), "net": self.net.to_dict()}
 
 
+def _with_defaults(saved: dict) -> dict:
+    """A checkpoint's settings with the fields added since it was written at their defaults."""
+    full = TrainConfig().to_dict()
+    return {**full, **saved, "weights": {**full["weights"], **saved.get("weights", {})},
+            "net": {**full["net"], **saved.get("net", {})}}
+
+
 def batch_tensors(ts: TrainingSet, idx: np.ndarray, model: DrapeModel) -> dict[str, torch.Tensor]:
     body = ts.body[idx].astype(np.float64)
     inp = np.concatenate([body, 10.0 * (body - model.mean_region[None])], 2).astype(np.float32)
@@ -95,7 +102,7 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
     ckpt = out / CHECKPOINT
     if ckpt.exists():
         saved = torch.load(ckpt, weights_only=True)
-        if saved["config"] != json.dumps(config.to_dict(), sort_keys=True) or saved["data"] != dataset_key(data):
+        if _with_defaults(json.loads(saved["config"])) != config.to_dict() or saved["data"] != dataset_key(data):
             raise TryonError(f"{ckpt} was made with other settings or data; use another --out or remove it")
         net.load_state_dict(saved["net"])
         opt.load_state_dict(saved["opt"])

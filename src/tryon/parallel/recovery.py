@@ -37,7 +37,7 @@ import torch
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.sim.collision import count_intersections
+from tryon.sim.collision import count_intersections, stitch_alias
 from tryon.sim.collision import push_outside as surface_push_outside
 from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
@@ -148,7 +148,7 @@ def self_intersecting_vertices(hier: Hierarchy, x: np.ndarray) -> np.ndarray:
         return np.zeros(0, np.int64)
     edges, faces = m.edges.numpy(), m.faces.numpy()
     pairs = edge_face_intersections(np.ascontiguousarray(x, np.float64), edges, np.ascontiguousarray(x, np.float64),
-                                    faces, True)
+                                    faces, True, stitch_alias(m.stitches, m.num_vertices))
     return np.unique(np.concatenate([edges[pairs[:, 0]].ravel(), faces[pairs[:, 1]].ravel()]))
 
 
