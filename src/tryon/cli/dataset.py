@@ -6,8 +6,27 @@ import argparse
 import json
 
 
+def _print_run(store, report) -> None:
+    """What a generator run made, and the dataset it left, as JSON."""
+    from tryon.dataset import load_drape_dataset
+
+    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
+                      "wall_s": round(report.wall_s, 1), "samples_per_core_hour": round(report.samples_per_core_hour, 1),
+                      **load_drape_dataset(store.folder).summary()}, indent=1))
+
+
+def _generator_args(p: argparse.ArgumentParser) -> None:
+    """The options every resumable dataset generator takes."""
+    p.add_argument("--limit", type=int, help="make at most this many missing samples in this run (the rest on resume)")
+    p.add_argument("--out", required=True, help="dataset folder; an existing dataset with the same settings is resumed")
+    p.add_argument("--workers", type=int, default=1, help="Ray workers (1: in this process)")
+    p.add_argument("--ray-address", help="join a Ray cluster (host:port) instead of starting a local one")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+
+
 def _cmd_dataset_drape(args: argparse.Namespace) -> int:
-    from tryon.dataset import BodyRanges, DrapeDatasetSpec, load_drape_dataset, make_drape_dataset
+    from tryon.dataset import BodyRanges, DrapeDatasetSpec, make_drape_dataset
     from tryon.io.atomic import check_output_dir
 
     spec = DrapeDatasetSpec(garment=args.garment, sizes=tuple(args.sizes), count=args.count, fabric=args.fabric,
@@ -18,10 +37,7 @@ def _cmd_dataset_drape(args: argparse.Namespace) -> int:
     check_output_dir(args.out, force=args.force)
     store, report = make_drape_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
                                        force=args.force, progress=not args.quiet, limit=args.limit)
-    data = load_drape_dataset(store.folder)
-    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
-                      "wall_s": round(report.wall_s, 1), "samples_per_core_hour": round(report.samples_per_core_hour, 1),
-                      **data.summary()}, indent=1))
+    _print_run(store, report)
     print(f"dataset: {store.folder} (manifest.json, shards/, references/)")
     return 0
 
@@ -36,7 +52,6 @@ def _cmd_dataset_pack(args: argparse.Namespace) -> int:
 
 
 def _cmd_dataset_refine(args: argparse.Namespace) -> int:
-    from tryon.dataset import load_drape_dataset
     from tryon.io.atomic import check_output_dir
     from tryon.learn.model import shipped_model_path
     from tryon.learn.selfcorrect import make_refined_dataset
@@ -46,10 +61,7 @@ def _cmd_dataset_refine(args: argparse.Namespace) -> int:
     store, report = make_refined_dataset(args.source, model, args.count, args.out, seed=args.seed, workers=args.workers,
                                          ray_address=args.ray_address, force=args.force, progress=not args.quiet,
                                          limit=args.limit)
-    data = load_drape_dataset(store.folder)
-    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
-                      "wall_s": round(report.wall_s, 1), "samples_per_core_hour": round(report.samples_per_core_hour, 1),
-                      **data.summary()}, indent=1))
+    _print_run(store, report)
     print(f"refined dataset: {store.folder}; train on it with tryon train drape --data {args.source} {store.folder}")
     return 0
 
@@ -70,12 +82,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="bodies at or above this BMI form the extrapolation split (held out of training)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--shard-size", type=int, default=32, help="samples per shard file")
-    p.add_argument("--limit", type=int, help="make at most this many missing samples in this run (the rest on resume)")
-    p.add_argument("--out", required=True, help="dataset folder; an existing dataset with the same settings is resumed")
-    p.add_argument("--workers", type=int, default=1, help="Ray workers (1: in this process)")
-    p.add_argument("--ray-address", help="join a Ray cluster (host:port) instead of starting a local one")
-    p.add_argument("--quiet", action="store_true")
-    p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    _generator_args(p)
     p.set_defaults(func=_cmd_dataset_drape)
     r = kinds.add_parser("refine", help="self-correction: a model's predictions on more bodies, refined by physics, "
                                         "as a drape dataset to train on with the simulated one")
@@ -83,12 +90,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--model", help="model file (default: the shipped T-shirt model)")
     r.add_argument("--count", type=int, default=100, help="bodies (samples per size)")
     r.add_argument("--seed", type=int, help="body seed (default: the source's + 1000, so no body repeats)")
-    r.add_argument("--limit", type=int, help="make at most this many missing samples in this run (the rest on resume)")
-    r.add_argument("--out", required=True, help="dataset folder; an existing one with the same settings is resumed")
-    r.add_argument("--workers", type=int, default=1, help="Ray workers (1: in this process)")
-    r.add_argument("--ray-address", help="join a Ray cluster (host:port) instead of starting a local one")
-    r.add_argument("--quiet", action="store_true")
-    r.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    _generator_args(r)
     r.set_defaults(func=_cmd_dataset_refine)
     k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control")
     k.add_argument("dataset", help="dataset folder")
