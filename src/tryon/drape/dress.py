@@ -401,13 +401,12 @@ def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: fl
     the shoulder joint lies partly inside the bodice, and sewing (with self-collision on)
     cannot undo a crossing it starts with. Returns positions, vertices pushed out of the
     skin and the sleeves' shift (m)."""
+    from tryon.sim.collision import stitch_alias
     from tryon.sim.collision.geometry import mesh_edges
     from tryon.sim.collision.intersections import edge_face_intersections
 
     sleeves = [(mesh.panel_of_vertex == k, ArmTube(body, p.placement["limb"], clearance).A)
                for k, p in enumerate(mesh.pattern.panels) if p.placement.get("part") == "arm"]
-    from tryon.sim.collision import stitch_alias
-
     edges = mesh_edges(mesh.faces)
     alias = stitch_alias(mesh.stitches, len(x))
     for shift in np.arange(0.0, SLEEVE_SHIFT_MAX + 1e-9, SLEEVE_SHIFT_STEP):
@@ -622,13 +621,9 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     x = place_pattern(mesh, body, clearance)
     st = mesh.stitches
     gap0 = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) if len(st) else 0.0
-    if gap0 <= SEAMS_CLOSED:
-        pos, faces, corner_uv, group = merge_stitched(mesh, x)
-        pos, pushed = clear_of_skin(pos, body, clearance)
-        uv = np.zeros((len(pos), 2))
-        uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
-        pos, stats = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name)
-        stats.update({"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0})
+    closed = gap0 <= SEAMS_CLOSED
+    if closed:
+        stats = {"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0, "sew_s": 0.0}
     else:
         x, pushed, shift = placed_apart(x, mesh, body, clearance)
         # a coarse mesh cannot follow the neck's curve everywhere: a neckline stitch can
@@ -636,14 +631,17 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
         # most half of `max_gap`
         x, stats = sew(mesh, x, body, fabric, max_gap=max(0.01, 0.5 * edge_length), progress=progress)
         stats["sleeve_shift_m"] = shift
-        pos, faces, corner_uv, group = merge_stitched(mesh, x)
-        uv = np.zeros((len(pos), 2))
-        uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
-        # welding a seam that ended a few millimetres open strains the cloth around it: let
-        # it relax (a coarse neckline welded 6 mm apart flung the drape's first step)
-        pos, relaxed = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name)
-        stats.update({"relax_steps": relaxed["relax_steps"], "relax_final_speed": relaxed["relax_final_speed"],
-                      "sew_s": stats["sew_s"] + relaxed["sew_s"]})
+    pos, faces, corner_uv, group = merge_stitched(mesh, x)
+    if closed:
+        pos, pushed = clear_of_skin(pos, body, clearance)
+    uv = np.zeros((len(pos), 2))
+    uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
+    # a placement welded at once relaxes from its placement strain; a sewn one from the
+    # strain that welding a seam a few millimetres open leaves (a coarse neckline welded
+    # 6 mm apart flung the drape's first step)
+    pos, relaxed = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name)
+    stats.update({"relax_steps": relaxed["relax_steps"], "relax_final_speed": relaxed["relax_final_speed"],
+                  "sew_s": stats["sew_s"] + relaxed["sew_s"]})
     owner = mesh.panel_of_vertex[mesh.faces[:, 0]]
     counts = np.bincount(group, minlength=len(pos))
     e = mesh_edges(faces)
