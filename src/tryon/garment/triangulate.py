@@ -19,6 +19,7 @@ from scipy.spatial import Delaunay
 
 from tryon.errors import MeshError
 from tryon.garment.pattern import Panel, Pattern
+from tryon.sim.collision.contacts import stitch_alias
 from tryon.sim.origin import PatternMesh
 
 
@@ -188,25 +189,13 @@ def triangulate_pattern(pattern: Pattern, edge_length: float = 0.01) -> GarmentM
 
 
 def merge_stitched(mesh: GarmentMesh, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Weld stitched vertices (union-find over the stitch pairs, so corners where several
+    """Weld stitched vertices (`stitch_alias`: chains of stitch pairs join, so corners where several
     seams meet become one vertex). Returns (positions [M,3] averaged over each group,
     faces [F,3] re-indexed, corner_uv [F,3,2], group index of each old vertex [N])."""
     n = mesh.num_vertices
-    parent = np.arange(n)
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for a, b in mesh.stitches:
-        ra, rb = find(int(a)), find(int(b))
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
-    roots = np.array([find(i) for i in range(n)])
-    uniq, group = np.unique(roots, return_inverse=True)
-    m = len(uniq)
+    alias = stitch_alias(mesh.stitches, n)
+    group = np.arange(n) if alias is None else alias
+    m = int(group.max()) + 1 if n else 0
     pos = np.zeros((m, 3))
     cnt = np.zeros(m)
     np.add.at(pos, group, x)
