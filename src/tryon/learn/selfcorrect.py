@@ -106,14 +106,15 @@ def refined_unit(manifest: Manifest, model_path: str, unit: int) -> dict[str, np
     target = a_posed_body(body.params)
     garment = model.reference_garment(body.gender, size)
     pred = model.predict_vertices(target.vertices, body.gender, size)
+    fabric = load_fabric(spec["fabric"])
     try:
-        x, stats = refine_drape(pred, garment, target, load_fabric(spec["fabric"]))
+        x, stats = refine_drape(pred, garment, target, fabric)
     except TryonError as exc:  # e.g. a predicted triangle collapsed: the sample is recorded as failed
         out.update({"x": np.full(pred.shape, np.nan, np.float32), "ok": np.asarray(False),
                     "error": np.asarray(str(exc)[:500]), "wall_s": np.asarray(time.perf_counter() - t0)})
         return out
     pen = penetration(x, target.vertices, target.faces)
-    strain = face_strain(ClothModel(garment.cloth_mesh(), load_fabric(spec["fabric"])), x)
+    strain = face_strain(ClothModel(garment.cloth_mesh(), fabric), x)
     good = stats["start_self_crossings"] == 0 and pen["penetration_pct"] == 0.0 and np.all(np.isfinite(x))
     out.update({"x": x.astype(np.float32), "ok": np.asarray(bool(good)),
                 "error": np.asarray("" if good else f"refined drape crosses itself ({stats['start_self_crossings']}) "
