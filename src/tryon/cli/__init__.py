@@ -239,6 +239,9 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
     return 0
 
 
+BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric"]
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "sim":
         from tryon.bench.sim import run_sim_bench
@@ -275,6 +278,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise TryonError("tryon bench ablations needs --data DATASET (a drape dataset from tryon dataset drape)")
         run_ablations(args.json, args.data, names=args.only, epochs=args.epochs or (4 if args.quick else 40))
         return 0
+    if args.what == "fidelity":
+        from tryon.bench.fidelity import run_fidelity_bench
+
+        run_fidelity_bench(args.json, reference=args.reference)
+        return 0
+    if args.what == "fit-fabric":
+        from tryon.bench.fit_fabric import HELD_OUT, run_fit_fabric_bench
+
+        run_fit_fabric_bench(args.json, reference=args.reference, held_out=() if args.quick else HELD_OUT)
+        return 0
     if args.what == "drape" and args.matrix:
         from tryon.bench.drape_matrix import run_drape_matrix
 
@@ -285,7 +298,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         run_drape_bench(args.json, quick=args.quick)
         return 0
-    raise TryonError(f"unknown benchmark {args.what!r}; available: sim, robustness, drape, grad, parallel, learned, ablations")
+    raise TryonError(f"unknown benchmark {args.what!r}; available: {', '.join(BENCHES)}")
 
 
 def _parallel_args(p: argparse.ArgumentParser) -> None:
@@ -408,7 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.set_defaults(func=_cmd_fabrics)
 
     b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")
-    b.add_argument("what", choices=["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations"])
+    b.add_argument("what", choices=BENCHES)
     b.add_argument("--json", default="bench.json", help="output JSON path")
     b.add_argument("--quick", action="store_true", help="fewer steps (smoke run)")
     b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
@@ -419,6 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--model", help="learned: a model file instead of the shipped one")
     b.add_argument("--only", nargs="+", metavar="VARIANT", help="ablations: these variants only (default: all)")
     b.add_argument("--epochs", type=int, help="ablations: epochs per variant (default 40; --quick 4)")
+    b.add_argument("--reference", metavar="DIR",
+                   help="fidelity, fit-fabric: a folder of ARCSim runs (*.npz, ground truth included; default: the copy "
+                        "in the package)")
     b.add_argument("--matrix", action="store_true",
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)

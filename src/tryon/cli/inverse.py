@@ -34,8 +34,8 @@ def _cmd_fit_fabric(args: argparse.Namespace) -> int:
 
     report = run_fit_fabric(args.observed, args.out, scene=args.scene, truth=args.truth, method=args.method,
                             progress=not args.quiet, force=args.force, comparison_picture=sequence_comparison_png)
-    keys = ["simulation_error", "simulations", "simulated_steps", "wall_s", "density_error", "stretching_error",
-            "bending_error"]
+    keys = ["simulation_error", "simulation_error_at_truth", "dt", "handles", "simulations", "simulated_steps", "wall_s",
+            "density_error", "stretching_error", "bending_error"]
     print(json.dumps({k: report[k] for k in keys if k in report}, indent=2))
     print(f"wrote {args.out}/fabric.json, loss_curve.png, observed_vs_fit.png, report.json")
     return 0
@@ -66,7 +66,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--scene", help="scene YAML the sequence was recorded in (optional for hanging-in-wind files)")
     f.add_argument("--out", help="output folder: fabric.json, loss_curve.png, observed_vs_fit.png, report.json")
     f.add_argument("--truth", help="preset the sequence was made with: adds parameter errors to the report")
-    f.add_argument("--method", choices=["gradient", "finite-difference", "physical"], default="gradient")
+    f.add_argument("--method", choices=["gauss-newton", "gradient", "finite-difference", "physical"],
+                   default="gauss-newton")
     f.add_argument("--make-observed", nargs=2, metavar=("PRESET", "OUT.npz"),
                    help="instead of fitting, simulate the hanging-in-wind scene with PRESET and write OUT.npz")
     f.add_argument("--resolution", type=int, default=8, help="grid resolution for --make-observed")

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +36,10 @@ import torch
 from scipy.optimize import minimize
 from tqdm import tqdm
 
-from tryon.diff.observed import Observation, load_observed
+from tryon.diff.identify import identifiability
+from tryon.diff.momentum import momentum_estimate
+from tryon.diff.observed import Observation, load_observed, simulate_frames
+from tryon.diff.timestep import choose_dt
 from tryon.diff.rollout import DiffSimulator
 from tryon.errors import TryonError
 from tryon.fabric.presets import load_fabric, mean_preset_fabric, save_fabric
@@ -46,13 +50,18 @@ from tryon.sim.forces.wind import wind_forces
 from tryon.sim.model import ClothModel
 from tryon.sim.scene import load_scene
 
-METHODS = ("gradient", "finite-difference", "physical")
+METHODS = ("gauss-newton", "gradient", "finite-difference", "physical")
 GROUP_NAMES = ("density", "stretch_k0", "stretch_k1", "stretch_k2", "stretch_k3", "stretch_nonlinear",
                "bend_u", "bend_diagonal", "bend_v")
 BOUND = 3.0  # |theta| <= 3: each group within a factor e^3 = 20 of the mean fabric
 PRIOR = 1e-6  # weight of |theta|^2 (the loss is ~1e-4 at a 1 % simulation error)
 FD_STEP = 1e-4
-STAGE_ITERATIONS = (8, 8, 12)
+STAGE_ITERATIONS = (8, 8, 8)
+STAGE_EVALUATIONS = (14, 12, 10)  # simulations per stage at most (line searches included)
+GN_ITERATIONS = (4, 3, 3)  # Gauss-Newton iterations per stage
+GN_FD_STEP = 1e-2  # log-multiplier step of the Jacobian's forward differences (a 1 % change)
+GN_DAMPING = 1e-2  # Levenberg-Marquardt damping at the start of a stage (relative to diag(J^T J))
+GN_RETRIES = 4
 
 
 def parameter_groups() -> torch.Tensor:
@@ -79,6 +88,7 @@ class FitResult:
     simulated_steps: int = 0
     gradient_evaluations: int = 0
     wall_s: float = 0.0
+    setup: dict = field(default_factory=dict)  # handles, momentum balance, time step (`prepare_fit`)
 
 
 class FabricEstimator:
@@ -89,9 +99,8 @@ class FabricEstimator:
         self.obs = obs
         self.start = start or mean_preset_fabric()
         self.model = model or obs.model(self.start)
-        self.dt = dt or obs.dt
-        self.spf = max(1, int(round(obs.frame_time / self.dt)))
-        self.sim = DiffSimulator(self.model, self.dt, fabric=self.start)
+        self._sims: dict[float, DiffSimulator] = {}
+        self.use_dt(dt or obs.dt)
         self.base = self.start.parameters().detach().clone()
         self.groups = parameter_groups()
         self.x_obs = torch.from_numpy(obs.positions)
@@ -102,6 +111,14 @@ class FabricEstimator:
         self.history: list[dict] = []
         self.progress = progress
 
+    def use_dt(self, dt: float) -> None:
+        """Simulate with time step `dt` from now on (coarse-to-fine stages)."""
+        self.dt = dt
+        self.spf = max(1, int(round(self.obs.frame_time / dt)))
+        if dt not in self._sims:
+            self._sims[dt] = DiffSimulator(self.model, dt, fabric=self.start)
+        self.sim = self._sims[dt]
+
     def params(self, theta: torch.Tensor) -> torch.Tensor:
         return self.base * torch.exp(self.groups @ theta)
 
@@ -110,10 +127,12 @@ class FabricEstimator:
         fab.name, fab.composition, fab.multipliers = name, "estimated by tryon fit-fabric", {}
         return fab
 
-    def simulate(self, theta: torch.Tensor, frames: int) -> torch.Tensor:
-        """Simulated positions of frames 0..frames-1 ``[frames, N, 3]``."""
+    def simulate(self, theta: torch.Tensor, frames: int, params: torch.Tensor | None = None) -> torch.Tensor:
+        """Simulated positions of frames 0..frames-1 ``[frames, N, 3]`` (of `params`, a
+        full parameter vector, when given instead of theta)."""
         steps = (frames - 1) * self.spf
-        traj = self.sim.rollout(steps, params=self.params(theta), x0=self.x_obs[0], v0=torch.zeros_like(self.x_obs[0]))
+        params = self.params(theta) if params is None else params
+        traj = self.sim.rollout(steps, params=params, x0=self.x_obs[0], v0=torch.zeros_like(self.x_obs[0]))
         self.simulations += 1
         self.steps += steps
         return traj.x[:: self.spf]
@@ -143,10 +162,10 @@ class FabricEstimator:
         self.history.append({"frames": frames, "loss": out[0], "simulations": self.simulations, "steps": self.steps})
         return out
 
-    def simulation_error(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+    def simulation_error(self, theta: np.ndarray, params: torch.Tensor | None = None) -> tuple[float, np.ndarray]:
         """Mean vertex distance over all frames / cloth size, and the simulated frames."""
         with torch.no_grad():
-            x = self.simulate(torch.as_tensor(theta, dtype=torch.float64), self.obs.num_frames)
+            x = self.simulate(torch.as_tensor(theta, dtype=torch.float64), self.obs.num_frames, params)
         err = float((x[1:] - self.x_obs[1:]).norm(dim=-1).mean()) / self.size
         return err, x.numpy()
 
@@ -155,21 +174,88 @@ def _stages(frames: int) -> list[int]:
     return sorted({max(2, (frames + 3) // 4), max(2, (frames + 1) // 2), frames})
 
 
-def fit_by_optimisation(est: FabricEstimator, method: str) -> np.ndarray:
-    """L-BFGS-B over progressively more frames; returns theta."""
+def _coarse_dt(est: FabricEstimator) -> float:
+    """Twice the fit's step when that still divides a frame: the early stages' step."""
+    return est.dt * 2 if est.spf % 2 == 0 else est.dt
+
+
+def fit_by_optimisation(est: FabricEstimator, method: str, frozen: tuple[str, ...] = ()) -> np.ndarray:
+    """L-BFGS-B over progressively more frames; returns theta. `frozen` groups stay at
+    the start fabric's values."""
     theta = np.zeros(len(GROUP_NAMES))
+    bounds = [(0.0, 0.0) if name in frozen else (-BOUND, BOUND) for name in GROUP_NAMES]
     bar = tqdm(desc=f"fit-fabric ({method})", unit="eval", disable=not est.progress, leave=False)
     stages = _stages(est.obs.num_frames)
-    for frames, iters in zip(stages, STAGE_ITERATIONS[-len(stages):]):
+    fine_dt, coarse_dt = est.dt, _coarse_dt(est)
+    for k, (frames, iters, evals) in enumerate(zip(stages, STAGE_ITERATIONS[-len(stages):], STAGE_EVALUATIONS[-len(stages):])):
+        est.use_dt(fine_dt if k == len(stages) - 1 else coarse_dt)
         def fun(th: np.ndarray, frames=frames) -> tuple[float, np.ndarray]:
             value, grad = est.value_and_grad(th, frames, method)
             bar.update(1)
             bar.set_postfix(frames=frames, loss=f"{value:.3g}", sims=est.simulations)
             return value, grad
 
-        res = minimize(fun, theta, jac=True, method="L-BFGS-B", bounds=[(-BOUND, BOUND)] * len(theta),
-                       options={"maxiter": iters, "ftol": 1e-12, "gtol": 1e-10})
+        res = minimize(fun, theta, jac=True, method="L-BFGS-B", bounds=bounds,
+                       options={"maxiter": iters, "maxfun": evals, "ftol": 1e-12, "gtol": 1e-10})
         theta = res.x
+    bar.close()
+    return theta
+
+
+def _residual(est: FabricEstimator, theta: np.ndarray, frames: int) -> np.ndarray:
+    """(simulated - observed) / size over frames 1..frames-1, flattened: a plain forward run."""
+    x = simulate_frames(est.model, frames, est.spf, est.dt, fabric=est.fabric(theta, "candidate"))
+    est.simulations += 1
+    est.steps += (frames - 1) * est.spf
+    return ((x[1:] - est.obs.positions[1:frames]) / est.size).reshape(-1)
+
+
+def fit_by_gauss_newton(est: FabricEstimator, frozen: tuple[str, ...] = ()) -> np.ndarray:
+    """Levenberg-Marquardt on the same staged loss as `fit_by_optimisation`: per iteration
+    one forward run per free group gives the Jacobian by forward differences, then a
+    damped Gauss-Newton step is tried (and the damping raised until the loss drops).
+    Forward runs only (no adjoint), and few iterations: Gauss-Newton converges in a
+    handful where L-BFGS needs tens of gradients. Returns theta."""
+    theta = np.zeros(len(GROUP_NAMES))
+    free = [k for k, g in enumerate(GROUP_NAMES) if g not in frozen]
+    stages = _stages(est.obs.num_frames)
+    fine_dt, coarse_dt = est.dt, _coarse_dt(est)
+    bar = tqdm(desc="fit-fabric (gauss-newton)", unit="sim", disable=not est.progress, leave=False)
+    for k, (frames, iters) in enumerate(zip(stages, GN_ITERATIONS[-len(stages):])):
+        est.use_dt(fine_dt if k == len(stages) - 1 else coarse_dt)
+        n = (frames - 1) * est.obs.positions.shape[1]
+
+        def cost(r: np.ndarray, th: np.ndarray) -> float:
+            return float(r @ r) / n + PRIOR * float(th @ th)
+
+        r = _residual(est, theta, frames)
+        current = cost(r, theta)
+        mu = GN_DAMPING
+        for _ in range(iters):
+            J = np.zeros((len(r), len(free)))
+            for col, g in enumerate(free):
+                th = theta.copy()
+                th[g] += GN_FD_STEP
+                J[:, col] = (_residual(est, th, frames) - r) / GN_FD_STEP
+                bar.update(1)
+            A = J.T @ J + n * PRIOR * np.eye(len(free))
+            grad = J.T @ r + n * PRIOR * theta[free]
+            improved = False
+            for _ in range(GN_RETRIES):
+                step = np.linalg.solve(A + mu * np.diag(np.diag(A)), -grad)
+                trial = theta.copy()
+                trial[free] = np.clip(theta[free] + step, -BOUND, BOUND)
+                r_trial = _residual(est, trial, frames)
+                bar.update(1)
+                if cost(r_trial, trial) < current:
+                    theta, r, current, improved = trial, r_trial, cost(r_trial, trial), True
+                    mu = max(mu / 3.0, 1e-6)
+                    break
+                mu *= 4.0
+            est.history.append({"frames": frames, "loss": current, "simulations": est.simulations, "steps": est.steps})
+            bar.set_postfix(frames=frames, loss=f"{current:.3g}", sims=est.simulations)
+            if not improved:
+                break
     bar.close()
     return theta
 
@@ -222,16 +308,76 @@ def parameter_errors(fit: WangFabric, truth: WangFabric) -> dict:
     }
 
 
-def fit_fabric(obs: Observation, method: str = "gradient", model: ClothModel | None = None, dt: float | None = None,
+@dataclass
+class FitSetup:
+    """What `prepare_fit` decided before optimising: the observation as modelled (soft
+    handles or exact pins), the start fabric, the time step and the frozen groups."""
+
+    obs: Observation
+    start: WangFabric
+    dt: float
+    frozen: tuple[str, ...] = ()
+    report: dict = field(default_factory=dict)
+
+
+def prepare_fit(obs: Observation, dt: float | None = None, progress: bool = False) -> FitSetup:
+    """For a hanging-in-wind observation: handles, density and time step before the fit.
+
+    1. Pinned vertices that drift hang from soft handles; without a ``handle_stiffness``
+       in the file, the momentum balance (`tryon.diff.momentum`) estimates it.
+    2. The same balance gives the density, independent of any elastic model; the fit
+       keeps it (the density group is frozen) instead of trading it against motion the
+       elastic model cannot explain.
+    3. Without a ``dt`` in the file (or `dt`), the step comes from the convergence check
+       (`tryon.diff.timestep.choose_dt`) with the start fabric.
+    """
+    start = mean_preset_fabric()
+    report: dict = {}
+    frozen: tuple[str, ...] = ()
+    balance = momentum_estimate(obs, obs.model(start))
+    if balance is not None:
+        report["momentum_balance"] = balance.as_dict()
+        if obs.handle_stiffness <= 0:
+            obs = dataclasses.replace(obs, handle_stiffness=balance.handle_stiffness)
+            report["handles"] = "soft, stiffness from the momentum balance"
+        p = start.parameters().detach().clone()
+        p[0] = balance.density
+        start = start.with_parameters(p)
+        start.name = "wang2011-mean, density from the momentum balance"
+        frozen = ("density",)
+    report.setdefault("handles", "soft, stiffness from the file" if obs.handle_stiffness > 0 else "held exactly")
+    report["handle_stiffness"] = obs.handle_stiffness
+    if dt is None and not obs.dt_given:
+        if progress:
+            print("fit-fabric: choosing the time step (convergence check)")
+        choice = choose_dt(obs, start)
+        dt = choice.dt
+        report["time_step"] = choice.as_dict()
+    else:
+        dt = dt or obs.dt
+        report["time_step"] = {"dt": dt, "source": "the observation's dt" if obs.dt_given else "given"}
+    report["frozen_groups"] = list(frozen)
+    return FitSetup(obs, start, dt, frozen, report)
+
+
+def fit_fabric(obs: Observation, method: str = "gauss-newton", model: ClothModel | None = None, dt: float | None = None,
                name: str = "fitted", progress: bool = False) -> tuple[FitResult, FabricEstimator]:
-    """Estimate a fabric for `obs` (Python API of `tryon fit-fabric`)."""
+    """Estimate a fabric for `obs` (Python API of `tryon fit-fabric`). Without `model`
+    (the hanging-in-wind scene) `prepare_fit` sets up handles, density and time step."""
     if method not in METHODS:
         raise TryonError(f"unknown fit method {method!r}; choose one of {', '.join(METHODS)}")
-    est = FabricEstimator(obs, model=model, dt=dt, progress=progress)
     tic = time.perf_counter()
-    theta = physical_estimate(est) if method == "physical" else fit_by_optimisation(est, method)
+    setup = FitSetup(obs, mean_preset_fabric(), dt or obs.dt) if model is not None else prepare_fit(obs, dt, progress)
+    est = FabricEstimator(setup.obs, model=model, dt=setup.dt, start=setup.start, progress=progress)
+    if method == "physical":
+        theta = physical_estimate(est)
+    elif method == "gauss-newton":
+        theta = fit_by_gauss_newton(est, setup.frozen)
+    else:
+        theta = fit_by_optimisation(est, method, setup.frozen)
+    theta[[GROUP_NAMES.index(g) for g in setup.frozen]] = 0.0
     result = FitResult(method, est.fabric(theta, name), theta, est.history, est.simulations, est.steps,
-                       est.gradients, time.perf_counter() - tic)
+                       est.gradients, time.perf_counter() - tic, setup.report)
     return result, est
 
 
@@ -263,7 +409,7 @@ def _loss_plot(path: Path, history: list[dict], method: str) -> None:
 
 
 def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str | None = None,
-                   method: str = "gradient", progress: bool = True, force: bool = False,
+                   method: str = "gauss-newton", progress: bool = True, force: bool = False,
                    comparison_picture: Callable[[Path, np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> dict:
     """`tryon fit-fabric`: fit, then write fabric.json, loss_curve.png, observed_vs_fit.png
     and report.json into `out` (atomically, as one folder). Returns the report."""
@@ -293,10 +439,18 @@ def run_fit_fabric(observed: str, out: str, scene: str | None = None, truth: str
         "fitted": {"name": name, "density_kg_m2": float(result.fabric.density)},
         "note": "simulations, simulated_steps and wall_s count the fit only; two more runs score the start and the result",
     }
+    report.update(result.setup)
+    report["dt"] = est.dt
+    if method != "physical":
+        tic = time.perf_counter()
+        free = [k for k, g in enumerate(GROUP_NAMES) if g not in result.setup.get("frozen_groups", [])]
+        report["identifiability"] = identifiability(est, result.theta, GROUP_NAMES, free)
+        report["identifiability"]["wall_s"] = time.perf_counter() - tic
     if truth_fabric is not None:
         report["truth"] = truth_fabric.name
         report.update(parameter_errors(result.fabric, truth_fabric))
         report["start_errors"] = parameter_errors(est.start, truth_fabric)
+        report["simulation_error_at_truth"], _ = est.simulation_error(result.theta, truth_fabric.parameters().detach())
     with atomic_output_dir(out, force=force) as tmp:
         save_fabric(result.fabric, tmp / "fabric.json")
         _loss_plot(tmp / "loss_curve.png", result.history, method)

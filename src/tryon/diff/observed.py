@@ -10,10 +10,15 @@ An observed file is an ``.npz`` with
 * ``frame_time`` (s), ``gravity [3]`` (m/s^2), ``wind_velocity [3]`` (m/s),
   ``wind_density``, ``wind_drag`` (ARCSim's face drag model, `tryon.sim.forces.wind`);
 * optionally ``dt`` (s), the simulation step (default: the largest step <= 0.01 s that
-  divides ``frame_time``), and ``fabric`` (the name of the fabric that made it).
+  divides ``frame_time``; `tryon fit-fabric` then chooses its own by a convergence
+  check), ``handle_stiffness`` (N/m per axis: the pinned vertices hang from ARCSim's
+  soft node handles instead of being held exactly) and ``fabric`` (the name of the fabric
+  that made it).
 
 These keys define the hanging-in-wind scene completely (no obstacles, default contact
-settings), so ``--scene`` is optional for such files.
+settings), so ``--scene`` is optional for such files. The scene is integrated as ARCSim
+integrates it: the wind force is explicit (no velocity Jacobian in the solve) and soft
+handles are implicit penalty springs to the handles' start positions.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ from tryon.limits import LIMITS, check_limit
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import FrameRecorder, run
 from tryon.sim.mesh import ClothMesh
-from tryon.sim.model import ClothModel, PinGroup, Wind
+from tryon.sim.model import ClothModel, PinGroup, SoftHandle, Wind
 from tryon.sim.scene import example_spec, parse_scene
 
 REQUIRED_KEYS = ("positions", "faces", "uv", "pinned", "frame_time", "gravity", "wind_velocity", "wind_density", "wind_drag")
@@ -55,6 +60,8 @@ class Observation:
     wind_drag: float
     dt: float
     fabric: str = ""
+    handle_stiffness: float = 0.0  # N/m per axis; 0: the pinned vertices are held exactly
+    dt_given: bool = True  # False: dt is `default_dt`, the file did not set it
 
     @property
     def num_frames(self) -> int:
@@ -72,9 +79,14 @@ class Observation:
         """The hanging-in-wind `ClothModel` of this observation with `fabric`."""
         mesh = ClothMesh(torch.from_numpy(self.positions[0].copy()), torch.from_numpy(self.uv), torch.from_numpy(self.faces),
                          name="observed")
-        pins = [PinGroup(torch.from_numpy(self.pinned))] if len(self.pinned) else []
-        wind = Wind(tuple(float(v) for v in self.wind_velocity), float(self.wind_density), float(self.wind_drag))
-        return ClothModel(mesh, fabric, pins=pins, gravity=tuple(float(g) for g in self.gravity), wind=wind)
+        pinned = torch.from_numpy(self.pinned)
+        soft = self.handle_stiffness > 0
+        pins = [PinGroup(pinned)] if len(self.pinned) and not soft else []
+        handles = [SoftHandle(pinned, float(self.handle_stiffness))] if len(self.pinned) and soft else []
+        wind = Wind(tuple(float(v) for v in self.wind_velocity), float(self.wind_density), float(self.wind_drag),
+                    implicit=False)
+        return ClothModel(mesh, fabric, pins=pins, handles=handles, gravity=tuple(float(g) for g in self.gravity),
+                          wind=wind)
 
 
 def default_dt(frame_time: float) -> float:
@@ -84,6 +96,7 @@ def default_dt(frame_time: float) -> float:
 
 MIN_FRAME_TIME, MAX_FRAME_TIME = 1e-3, 10.0  # s
 MIN_DT = 1e-5  # s
+MAX_HANDLE_STIFFNESS = 1e9  # N/m
 
 
 def load_observed(path: str | Path, allow_large: bool | None = None) -> Observation:
@@ -109,14 +122,18 @@ def load_observed(path: str | Path, allow_large: bool | None = None) -> Observat
     uv = npz.float_array(data, "uv", source, (n, 2))
     pinned = npz.int_array(data, "pinned", source, None, below=n).reshape(-1)
     frame_time = npz.scalar(data, "frame_time", source, MIN_FRAME_TIME, MAX_FRAME_TIME, "s")
-    dt = npz.scalar(data, "dt", source, MIN_DT, frame_time, "s") if "dt" in data else default_dt(frame_time)
+    dt_given = "dt" in data
+    dt = npz.scalar(data, "dt", source, MIN_DT, frame_time, "s") if dt_given else default_dt(frame_time)
+    handle_k = npz.scalar(data, "handle_stiffness", source, 0.0, MAX_HANDLE_STIFFNESS, "N/m") \
+        if "handle_stiffness" in data else 0.0
     steps = (T - 1) * max(1, int(round(frame_time / dt)))
     check_limit(f"{source}: simulation steps per run ((frames - 1) * frame_time / dt)", steps, LIMITS.max_steps,
                 "max_steps", allow_large)
     gravity, wind = _vector(data, "gravity", source, 1000.0), _vector(data, "wind_velocity", source, 1000.0)
     return Observation(pos, faces, uv, pinned, frame_time, gravity, wind,
                        npz.scalar(data, "wind_density", source, 0.0, 100.0, "kg/m^3"),
-                       npz.scalar(data, "wind_drag", source, 0.0, 100.0), dt, npz.text(data, "fabric", source, "", 200))
+                       npz.scalar(data, "wind_drag", source, 0.0, 100.0), dt, npz.text(data, "fabric", source, "", 200),
+                       handle_k, dt_given)
 
 
 def _vector(data: dict, key: str, source: str, bound: float) -> np.ndarray:
@@ -133,14 +150,18 @@ def save_observed(path: str | Path, obs: Observation) -> None:
     with atomic_write(path, "wb") as fh:
         np.savez(fh, positions=obs.positions, faces=obs.faces, uv=obs.uv, pinned=obs.pinned, frame_time=obs.frame_time,
                  gravity=obs.gravity, wind_velocity=obs.wind_velocity, wind_density=obs.wind_density,
-                 wind_drag=obs.wind_drag, dt=obs.dt, fabric=obs.fabric)
+                 wind_drag=obs.wind_drag, **({"fabric": obs.fabric} if obs.fabric else {}),
+                 **({"dt": obs.dt} if obs.dt_given else {}),
+                 **({"handle_stiffness": obs.handle_stiffness} if obs.handle_stiffness > 0 else {}))
 
 
-def simulate_frames(model: ClothModel, frames: int, steps_per_frame: int, dt: float, progress: bool = False) -> np.ndarray:
-    """Positions ``[frames, N, 3]`` of a forward run from the model's initial state at rest."""
+def simulate_frames(model: ClothModel, frames: int, steps_per_frame: int, dt: float, progress: bool = False,
+                    fabric: Fabric | None = None) -> np.ndarray:
+    """Positions ``[frames, N, 3]`` of a forward run from the model's initial state at rest
+    (with `fabric` instead of the model's when given)."""
     state = model.initial_state()
     frames_kept = FrameRecorder(steps_per_frame, (frames - 1) * steps_per_frame, first=state)
-    run(ImplicitEulerSolver(model), state, dt, until=(frames - 1) * steps_per_frame, observers=[frames_kept],
+    run(ImplicitEulerSolver(model, fabric=fabric), state, dt, until=(frames - 1) * steps_per_frame, observers=[frames_kept],
         progress="simulating" if progress else None)
     return np.stack(frames_kept.positions)
 

@@ -193,7 +193,7 @@ def step_backward(ctx: StepContext, tape: StepTape, inputs: tuple, g_xnew: torch
             target_t = tl if tl is not None else torch.from_numpy(tape.x_cand[pinned])
             dv = dv.index_put((pin_idx,), (target_t - xl[pin_idx]) / dt - vl[pin_idx])
         S = step_residual(solver.model, StepInputs(xl, vl, fabric, fl, wl), dv, torch.from_numpy(a), dt,
-                          tape.contacts, tape.ob0, tape.ob1, ctx.friction_gradient)
+                          tape.contacts, tape.ob0, tape.ob1, ctx.friction_gradient, t_end=tape.t0 + dt)
         if g_mass is not None:
             S = S + (torch.from_numpy(g_mass) * fabric.density * solver.model.vertex_area).sum()
         want = [t for t in leaves if t is not None]

@@ -136,6 +136,17 @@ def _stitch_residual(model: ClothModel, x, a, u) -> torch.Tensor:
     return -k * ((da * (x[i] - x[j])).sum() + (da * (u[i] - u[j])).sum())
 
 
+def _soft_handle_residual(model: ClothModel, x: torch.Tensor, a: torch.Tensor, u: torch.Tensor, t_end: float,
+                          dt: float) -> torch.Tensor:
+    """Soft handles ``E = k/2 |x - target|^2``: ``a^T (dt f - H u)`` with ``u = dt^2 (v + dv)``."""
+    idx, k, target = model.handle_springs(t_end)
+    if len(idx) == 0:
+        return x.new_zeros(())
+    i = torch.from_numpy(idx)
+    kk = torch.from_numpy(k)[:, None]
+    return -(kk * a[i] * (dt * (x[i] - torch.from_numpy(target)) + u[i])).sum()
+
+
 def step_residual(
     model: ClothModel,
     inp: StepInputs,
@@ -146,6 +157,7 @@ def step_residual(
     ob0: np.ndarray,
     ob1: np.ndarray,
     friction_gradient: str = "constant",
+    t_end: float = 0.0,
 ) -> torch.Tensor:
     """``a^T (dt f - dt^2 H (v + dv) - dt D dv - M dv)`` as a torch scalar (module docstring)."""
     x, v, fab = inp.x, inp.v, inp.fabric
@@ -160,8 +172,12 @@ def step_residual(
     out = -dt * ((g_mem * af).sum() + (g_bend * ah).sum())
     out = out - _element_bilinear(a, h_mem, u_el, model.faces) - _element_bilinear(a, h_bend, u_el, model.hinges)
     wind_v = inp.wind_velocity if inp.wind_velocity is not None else torch.as_tensor(model.wind.velocity, dtype=x.dtype)
-    f_wind, d_wind = wind_forces(x, v, model.faces, model.rest_area, wind_v, model.wind.density, model.wind.drag)
-    out = out + dt * (f_wind * a).sum() - dt * _element_bilinear(a, d_wind, dv, model.faces)
+    f_wind, d_wind = wind_forces(x, v, model.faces, model.rest_area, wind_v, model.wind.density, model.wind.drag,
+                                 with_jacobian=model.wind.implicit)
+    out = out + dt * (f_wind * a).sum()
+    if d_wind is not None:
+        out = out - dt * _element_bilinear(a, d_wind, dv, model.faces)
+    out = out + _soft_handle_residual(model, x, a, dt * dt * (v + dv), t_end, dt)
     force = mass[:, None] * model.gravity[None]
     if inp.external_force is not None:
         force = force + inp.external_force

@@ -33,17 +33,28 @@ def render_state_png(scene: Scene, x: np.ndarray, t: float, path: Path, width: i
     save_png(path, image)
 
 
+ROW_COLORS = ((0.3, 0.45, 0.8), (0.9, 0.55, 0.2), (0.35, 0.7, 0.35), (0.75, 0.3, 0.6))
+
+
+def sequences_png(path: Path, faces: np.ndarray, sequences: list[np.ndarray], width: int = 320) -> None:
+    """One row per sequence [T,N,3] (blue, orange, green, purple) at 1/4, 1/2, 3/4 and the
+    end of the first one's frames, all seen by the same camera."""
+    first = sequences[0]
+    picks = sorted({max(1, round(f * (len(first) - 1))) for f in (0.25, 0.5, 0.75, 1.0)})
+    cam = Camera.fit([seq[f] for seq in sequences for f in picks], view="three_quarter", margin=1.2)
+    rows = []
+    for k, frames in enumerate(sequences):
+        color = ROW_COLORS[k % len(ROW_COLORS)]
+        tiles = [render_meshes([RenderMesh(frames[f], faces, color=color)], width, width, camera=cam) for f in picks]
+        rows.append(np.concatenate(tiles, axis=1))
+    save_png(path, np.concatenate(rows, axis=0))
+
+
 def sequence_comparison_png(path: Path, faces: np.ndarray, observed: np.ndarray, fitted: np.ndarray,
                             width: int = 320) -> None:
     """Observed (top row, blue) and refitted (bottom row, orange) frames [T,N,3] at 1/4,
     1/2, 3/4 and the end (`tryon fit-fabric`'s observed_vs_fit.png)."""
-    picks = sorted({max(1, round(f * (len(observed) - 1))) for f in (0.25, 0.5, 0.75, 1.0)})
-    cam = Camera.fit([observed[f] for f in picks] + [fitted[f] for f in picks], view="three_quarter", margin=1.2)
-    rows = []
-    for frames, color in ((observed, (0.3, 0.45, 0.8)), (fitted, (0.9, 0.55, 0.2))):
-        tiles = [render_meshes([RenderMesh(frames[f], faces, color=color)], width, width, camera=cam) for f in picks]
-        rows.append(np.concatenate(tiles, axis=1))
-    save_png(path, np.concatenate(rows, axis=0))
+    sequences_png(path, faces, [observed, fitted], width)
 
 
 def trajectory_gif(path: Path, scene: Scene, trajectory: np.ndarray, every: int = 5, width: int = 360) -> None:

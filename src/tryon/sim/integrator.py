@@ -211,6 +211,7 @@ class ImplicitEulerSolver:
         x = state.x.detach().numpy()
         v = state.v.detach().numpy()
         H, D, f = self._elastic_and_air(state, control)
+        self._add_soft_handles(x, state.t + dt, f, H)
         active = None
         if contacts is not None and len(contacts):
             friction = None if control is None else control.friction
@@ -270,7 +271,8 @@ class ImplicitEulerSolver:
             )
             wind_v = m.wind.velocity if control is None or control.wind_velocity is None else control.wind_velocity
             f_wind, d_wind = wind_forces(
-                x, v, m.faces, m.rest_area, torch.as_tensor(wind_v, dtype=x.dtype), m.wind.density, m.wind.drag
+                x, v, m.faces, m.rest_area, torch.as_tensor(wind_v, dtype=x.dtype), m.wind.density, m.wind.drag,
+                with_jacobian=m.wind.implicit,
             )
         n = m.num_vertices
         f = -_scatter_vertex_grad(g_mem.numpy(), self.collisions.faces, n) - _scatter_vertex_grad(g_bend.numpy(), m.hinges.numpy(), n)
@@ -292,6 +294,15 @@ class ImplicitEulerSolver:
             D[self.pattern.diag_block] += air * self._mass_blocks
             f -= air * self.mass[:, None] * v.numpy()
         return H, D, f
+
+    def _add_soft_handles(self, x: np.ndarray, t_end: float, f: np.ndarray, H: np.ndarray) -> None:
+        """Springs E = k/2 |x - target(t_end)|^2 of the soft handles (ARCSim's node handles:
+        the target is the handle's position at the end of the step)."""
+        idx, k, target = self.model.handle_springs(t_end)
+        if len(idx) == 0:
+            return
+        np.add.at(f, idx, -k[:, None] * (x[idx] - target))
+        np.add.at(H, self.pattern.diag_block[idx], k[:, None, None] * np.eye(3)[None])
 
     def _add_stitches(self, x: np.ndarray, f: np.ndarray, H: np.ndarray, k: float) -> None:
         """Zero-length springs E = k/2 |x_i - x_j|^2 between stitched vertices (sewing)."""

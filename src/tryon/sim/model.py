@@ -20,11 +20,14 @@ from tryon.sim.obstacles import Motion, Obstacle, ObstacleSet
 
 @dataclass
 class Wind:
-    """Uniform wind (m/s) acting through ARCSim's face drag model."""
+    """Uniform wind (m/s) acting through ARCSim's face drag model. `implicit`: its velocity
+    Jacobian (a damping) enters the implicit solve; False adds the force explicitly, as
+    ARCSim does (``physics.cpp``: no Jacobian for wind)."""
 
     velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     density: float = 1.0
     drag: float = 0.0
+    implicit: bool = True
 
 
 @dataclass
@@ -47,6 +50,18 @@ class PinGroup:
     """Vertices attached to a handle that follows `motion` from their rest positions."""
 
     vertices: torch.Tensor
+    motion: Motion = field(default_factory=Motion)
+
+
+@dataclass
+class SoftHandle:
+    """Vertices pulled towards their rest positions (moved by `motion`) by a quadratic
+    penalty of `stiffness` N/m per axis, integrated implicitly: ARCSim's node handles
+    (``handle.cpp``, ``constraint.cpp``: ``EqCon``, ``magic.handle_stiffness``), which let a
+    pinned corner drift by a few millimetres under load. A hard `PinGroup` does not."""
+
+    vertices: torch.Tensor
+    stiffness: float
     motion: Motion = field(default_factory=Motion)
 
 
@@ -94,6 +109,7 @@ class ClothModel:
         stitches: torch.Tensor | None = None,
         stitch_stiffness: float = 0.0,
         air_damping: float = 0.0,
+        handles: list[SoftHandle] | None = None,
     ):
         self.mesh = mesh
         self.fabric = fabric
@@ -115,6 +131,8 @@ class ClothModel:
         self.hinge_edge_dir_uv = hd["edge_dir_uv"]
         self.vertex_area = self._vertex_areas()
         self.pinned = self._pinned_indices()
+        self.handles = handles or []
+        self._check_handles()
         self.stitches = self._checked_stitches(stitches)
         self.stitch_stiffness = float(stitch_stiffness)
         self.air_damping = float(air_damping)  # 1/s: force -c m v (still air, e.g. while sewing)
@@ -147,6 +165,31 @@ class ClothModel:
         if len(torch.unique(idx)) != len(idx):
             raise SceneError("a vertex is pinned by more than one handle")
         return idx
+
+    def _check_handles(self) -> None:
+        n = self.mesh.num_vertices
+        pinned = set(self.pinned.tolist())
+        for k, h in enumerate(self.handles):
+            idx = h.vertices
+            if len(idx) and (int(idx.min()) < 0 or int(idx.max()) >= n):
+                raise SceneError(f"soft handle {k}: vertex indices must lie in [0, {n - 1}]")
+            if not (np.isfinite(h.stiffness) and h.stiffness > 0):
+                raise SceneError(f"soft handle {k}: stiffness must be a positive number of N/m, got {h.stiffness}")
+            if pinned & set(idx.tolist()):
+                raise SceneError(f"soft handle {k}: a vertex is both pinned and held by a soft handle")
+
+    def handle_springs(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The soft handles at time t: vertex indices [h], stiffness per vertex [h] (N/m)
+        and target positions [h, 3] (numpy)."""
+        if not self.handles:
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
+        idx, k, tgt = [], [], []
+        for h in self.handles:
+            rest = self.mesh.x[h.vertices].numpy()
+            idx.append(h.vertices.numpy())
+            k.append(np.full(len(h.vertices), float(h.stiffness)))
+            tgt.append(np.ascontiguousarray(h.motion.apply(rest, t)))
+        return np.concatenate(idx).astype(np.int64), np.concatenate(k), np.concatenate(tgt)
 
     def mass(self, fabric: Fabric | None = None) -> torch.Tensor:
         """Lumped vertex masses (kg): areal density times a third of adjacent rest areas."""
