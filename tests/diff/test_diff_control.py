@@ -87,10 +87,21 @@ def test_control_command_writes_report_and_preview(tmp_path):
                  "--variant", "sloped", "--quiet"]) == 0
     report = json.loads((out / "report.json").read_text())
     modes = {r["mode"]: r for r in report["results"]}
-    assert set(modes) == {"direct", "policy", "point-mass"}
+    assert set(modes) == {"direct", "policy", "point-mass", "sampling"}
+    assert modes["sampling"]["cloth_simulations"] == 1
     for r in modes.values():
         assert np.isfinite(r["final_distance_over_size"]) and r["variant"] == "sloped"
     assert modes["point-mass"]["cloth_simulations"] == 1
     assert (out / "preview_sloped.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
     with pytest.raises(TryonError, match="unknown control example"):
         run_control("kite", str(tmp_path / "x"))
+
+
+def test_sampling_baseline_spends_its_budget_and_keeps_the_best(task):
+    from tryon.diff.control import SAMPLING_POPULATION, sample_search
+
+    res = sample_search(task, SAMPLING_POPULATION + 2, seed=1)
+    assert res.samples == res.cloth_simulations == len(res.history) == SAMPLING_POPULATION + 2
+    assert res.trajectory.shape[0] == task.steps + 1 and np.isfinite(res.distance_over_size)
+    with pytest.raises(TryonError, match="at least 1 sample"):
+        sample_search(task, 0)

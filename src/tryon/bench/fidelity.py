@@ -12,8 +12,9 @@ the cloth's diagonal (`tryon fit-fabric`'s simulation error). Records, with ``ro
   (``without``: ``soft handles`` - the pinned corners held exactly; ``explicit wind`` -
   the wind's velocity Jacobian in the implicit solve; or both): each cause's share;
 * ``dt``: at the other time steps of `DTS` (time-step bias);
-* ``fit-fabric``: at the step `tryon fit-fabric` chooses for this observation
-  (`tryon.diff.timestep.choose_dt`, started from the mean fabric);
+* ``fit-fabric``: at the step `tryon fit-fabric` chooses for this observation from its
+  frames alone (`tryon.diff.fit.prepare_fit`: the convergence check with the mean
+  fabric at the density of the momentum balance);
 * ``reference``: ARCSim against ARCSim, the same fabric at another time step, where the
   folder holds both (ARCSim's own time-step bias).
 
@@ -24,6 +25,7 @@ run, and ``<stem>-<run>-frames.png``, ARCSim (top row), `tryon` at the run's ste
 
 from __future__ import annotations
 
+import dataclasses
 import platform
 import time
 from dataclasses import dataclass
@@ -32,14 +34,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tryon.diff.observed import Observation, load_observed, simulate_frames
-from tryon.diff.timestep import choose_dt
+from tryon.diff.observed import Observation, camera_only, load_observed, simulate_frames
+from tryon.diff.fit import prepare_fit
 from tryon.errors import InputFileError, TryonError
-from tryon.fabric.presets import mean_preset_fabric
 from tryon.fabric.wang2011 import WangFabric
 from tryon.io.atomic import atomic_path, atomic_write
 from tryon.io.json_safe import dumps_json
-from tryon.sim.model import ClothModel, PinGroup
+from tryon.sim.model import ClothModel
 
 REFERENCE_DIR = Path(__file__).resolve().parent / "reference" / "arcsim_wind"
 DTS = (0.02, 0.01, 0.005, 0.0025)  # s: the steps every run is also simulated at
@@ -85,22 +86,14 @@ def load_reference_runs(folder: str | Path | None = None) -> list[ReferenceRun]:
     return runs
 
 
-def hard_pinned(model: ClothModel) -> ClothModel:
-    """`model` with its soft handles replaced by exact pins (`tryon`'s default handle)."""
-    if not model.handles:
-        return model
-    held = torch.cat([h.vertices for h in model.handles])
-    return ClothModel(model.mesh, model.fabric, pins=[*model.pins, PinGroup(held)], gravity=tuple(model.gravity.tolist()),
-                      wind=model.wind, collision=model.collision)
-
-
 def variant_model(run: ReferenceRun, without: str | None) -> ClothModel:
-    """ARCSim's scene, or with one of `CAUSES` replaced by tryon's default."""
-    model = run.obs.model(run.fabric)
-    if without in ("soft handles", CAUSES[2]):
-        model = hard_pinned(model)
+    """ARCSim's scene, or with one of `CAUSES` replaced by tryon's default: the pinned
+    vertices held exactly (no soft handles) and/or the wind's Jacobian in the solve."""
+    hard = without in ("soft handles", CAUSES[2])
+    obs = dataclasses.replace(run.obs, handle_stiffness=0.0) if hard else run.obs
+    model = obs.model(run.fabric)
     if without in ("explicit wind", CAUSES[2]):
-        model.wind.implicit = True
+        model.wind = dataclasses.replace(model.wind, implicit=True)
     return model
 
 
@@ -137,10 +130,11 @@ def run_records(run: ReferenceRun, dts=DTS) -> tuple[list[dict], dict[str, np.nd
             x, wall = _simulate(run, dt)
             records.append(_record(run, "dt", dt, x, wall))
     tic = time.perf_counter()
-    choice = choose_dt(run.obs, mean_preset_fabric())
+    setup = prepare_fit(camera_only(run.obs))  # what fit-fabric decides from the frames alone
     check_s = time.perf_counter() - tic
-    x_fit, wall = _simulate(run, choice.dt)
-    records.append(_record(run, "fit-fabric", choice.dt, x_fit, wall, choice=choice.as_dict(), choice_wall_s=check_s))
+    x_fit, wall = _simulate(run, setup.dt)
+    records.append(_record(run, "fit-fabric", setup.dt, x_fit, wall, choice=setup.report["time_step"],
+                           choice_wall_s=check_s))
     return records, {"own": x_own, "fit-fabric": x_fit}
 
 
@@ -214,7 +208,15 @@ def _print_table(records: list[dict]) -> None:
 
 def run_fidelity_bench(json_path: str, reference: str | None = None, pictures: bool = True) -> list[dict]:
     """Run the benchmark (module docstring), print a table and write the records as JSON."""
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    try:
+        return _run(json_path, reference, pictures)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run(json_path: str, reference: str | None, pictures: bool) -> list[dict]:
     runs = load_reference_runs(reference)
     records: list[dict] = []
     out = Path(json_path)

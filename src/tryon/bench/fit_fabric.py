@@ -25,7 +25,7 @@ import torch
 
 from tryon.bench.fidelity import REFERENCE_DIR, ReferenceRun, load_reference_runs
 from tryon.diff.fit import run_fit_fabric
-from tryon.diff.observed import Observation, save_observed, simulate_frames
+from tryon.diff.observed import Observation, camera_only, save_observed, simulate_frames
 from tryon.fabric.presets import load_fabric
 from tryon.io.atomic import atomic_write
 from tryon.io.json_safe import dumps_json
@@ -33,12 +33,6 @@ from tryon.io.json_safe import dumps_json
 HELD_OUT = ("camel-ponte-roma", "navy-sparkle-sweat", "royal-target")
 REFERENCE_DT = 0.005
 SCENE_RUN = "gray-interlock_dt0.005"  # the ARCSim run whose scene the held-out observations reuse
-
-
-def camera_only(obs: Observation) -> Observation:
-    """`obs` without the simulator's settings (no dt, no handle stiffness, no fabric name)."""
-    return Observation(obs.positions, obs.faces, obs.uv, obs.pinned, obs.frame_time, obs.gravity, obs.wind_velocity,
-                       obs.wind_density, obs.wind_drag, obs.dt, "", 0.0, dt_given=False)
 
 
 def held_out_observation(scene: ReferenceRun, fabric: str) -> Observation:
@@ -76,7 +70,15 @@ def run_fit_fabric_bench(json_path: str, reference: str | None = None, held_out:
                          all_steps: bool = False, keep: bool = True) -> list[dict]:
     """Fit every observation (module docstring); write the records as JSON, with the fit
     folders next to it (``<stem>-fits/``) when `keep`."""
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    try:
+        return _run(json_path, reference, held_out, all_steps, keep)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run(json_path: str, reference: str | None, held_out: tuple[str, ...], all_steps: bool, keep: bool) -> list[dict]:
     runs = load_reference_runs(reference or REFERENCE_DIR)
     chosen = [r for r in runs if all_steps or np.isclose(r.obs.dt, REFERENCE_DT)]
     out = Path(json_path)

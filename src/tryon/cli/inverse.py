@@ -81,7 +81,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser("control", help="steer cloth by optimising forces through the differentiable simulator")
     c.add_argument("--example", required=True, choices=["basket"])
     c.add_argument("--out", default="control-basket", help="output folder (report.json, preview GIFs)")
-    c.add_argument("--mode", choices=["direct", "policy", "point-mass", "all"], default="all")
+    c.add_argument("--mode", choices=["direct", "policy", "point-mass", "sampling", "all"], default="all")
     c.add_argument("--variant", choices=["flat", "sloped", "both"], default="both")
     c.add_argument("--iterations", type=int, default=30, help="optimisation steps (one simulation each)")
     c.add_argument("--resolution", type=int, default=5, help="cloth grid resolution")

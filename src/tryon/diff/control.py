@@ -20,7 +20,11 @@ that makes the loss 25 % worse than the best returns to the best with half the r
 * ``policy``: a two-layer network (tanh hidden layer) mapping the cloth state (centre of
   mass, its velocity, corner offsets, time) to the corner forces;
 * ``point-mass`` baseline: the direct forces optimised for a point of the cloth's mass
-  (no cloth, no obstacles), then applied to the cloth.
+  (no cloth, no obstacles), then applied to the cloth;
+* ``sampling`` baseline: the same direct forces searched without gradients, by the
+  cross-entropy method (generations of `SAMPLING_POPULATION` samples around a mean, the
+  best `SAMPLING_ELITE` of each setting the next mean and spread), with as many cloth
+  simulations as the gradient-trained controllers get.
 
 The ``sloped`` variant adds two tilted panels above the basket.
 """
@@ -45,7 +49,7 @@ from tryon.sim.mesh import grid_corner
 from tryon.sim.scene import Scene, parse_scene
 
 EXAMPLES = ("basket",)
-MODES = ("direct", "policy", "point-mass")
+MODES = ("direct", "policy", "point-mass", "sampling")
 VARIANTS = ("flat", "sloped")
 FORCE_TIME = 3.0  # s of corner forces
 DROP_TIME = 1.0  # s of free fall after them
@@ -60,6 +64,10 @@ BASKET_CENTER = (0.85, 0.0)
 BASKET_FLOOR = 0.04
 BASKET_HALF = 0.2
 HIDDEN = 32
+SAMPLING_POPULATION = 6  # cross-entropy method: samples per generation
+SAMPLING_ELITE = 2  # the best of each generation set the next mean and spread
+SAMPLING_STD = 1.0  # initial spread of u (tanh units: about the full force range)
+SAMPLING_MIN_STD = 0.05
 # (time as a fraction of the force time, centre-of-mass position); the end of the run last
 WAYPOINTS = ((0.5, (0.42, 0.0, 0.9)), (1.0, (BASKET_CENTER[0], BASKET_CENTER[1], 0.8)))
 
@@ -269,6 +277,39 @@ def optimise(task: BasketTask, mode: str, iterations: int, lr: float | None = No
                          history, best[1])
 
 
+def sample_search(task: BasketTask, samples: int, seed: int = 0, progress: bool = False) -> ControlResult:
+    """The cross-entropy method over the direct controller's u (module docstring): forward
+    simulations only, `samples` of them; the result is the best sample's."""
+    if samples < 1:
+        raise TryonError(f"the sampling baseline needs at least 1 sample, got {samples}")
+    tic = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    shape = (_n_intervals(task), 4, 3)
+    mean, std = np.zeros(shape), np.full(shape, SAMPLING_STD)
+    best, history, done = (float("inf"), None), [], 0
+    bar = tqdm(total=samples, desc=f"control (sampling, {task.variant})", unit="rollout", disable=not progress, leave=False)
+    while done < samples:
+        batch = [mean + std * rng.standard_normal(shape) for _ in range(min(SAMPLING_POPULATION, samples - done))]
+        losses = []
+        for u in batch:
+            with torch.no_grad():
+                traj = task.rollout(Controls(forces=interval_forces(torch.from_numpy(u), task), force_vertices=task.corners))
+                losses.append(float(task.loss(traj)))
+            ratio, _ = task.score(traj.x[-1])
+            if ratio < best[0] or best[1] is None:
+                best = (ratio, traj.x.numpy())
+            history.append(losses[-1])
+            bar.update(1)
+            bar.set_postfix(distance=f"{best[0]:.3f}")
+        done += len(batch)
+        elite = np.stack([batch[i] for i in np.argsort(losses)[:SAMPLING_ELITE]])
+        mean, std = elite.mean(0), np.maximum(elite.std(0), SAMPLING_MIN_STD)
+    bar.close()
+    ratio, inside = task.score(torch.from_numpy(best[1][-1]))
+    return ControlResult("sampling", task.variant, ratio, inside, samples, samples, time.perf_counter() - tic, history,
+                         best[1])
+
+
 def run_point_mass(task: BasketTask) -> ControlResult:
     tic = time.perf_counter()
     u, sims = point_mass_forces(task)
@@ -303,7 +344,12 @@ def run_control(example: str, out: str, modes: tuple[str, ...] = MODES, variants
         task = BasketTask(resolution, variant, dt)
         results = []
         for mode in modes:
-            res = run_point_mass(task) if mode == "point-mass" else optimise(task, mode, iterations, lr, progress)
+            if mode == "point-mass":
+                res = run_point_mass(task)
+            elif mode == "sampling":
+                res = sample_search(task, iterations, progress=progress)
+            else:
+                res = optimise(task, mode, iterations, lr, progress)
             results.append(res)
             report["results"].append(res.summary())
         best = min(results, key=lambda r: r.distance_over_size)

@@ -37,11 +37,11 @@ from scipy.optimize import minimize
 from tqdm import tqdm
 
 from tryon.diff.identify import identifiability
-from tryon.diff.momentum import momentum_estimate
+from tryon.diff.momentum import PIN_DRIFT_MIN, momentum_estimate, pin_drift
 from tryon.diff.observed import Observation, load_observed, simulate_frames
 from tryon.diff.timestep import choose_dt
 from tryon.diff.rollout import DiffSimulator
-from tryon.errors import TryonError
+from tryon.errors import SimulationError, TryonError
 from tryon.fabric.presets import load_fabric, mean_preset_fabric, save_fabric
 from tryon.fabric.wang2011 import WangFabric
 from tryon.io.atomic import atomic_output_dir, atomic_path, atomic_write, check_output_dir
@@ -163,11 +163,12 @@ class FabricEstimator:
         return out
 
     def simulation_error(self, theta: np.ndarray, params: torch.Tensor | None = None) -> tuple[float, np.ndarray]:
-        """Mean vertex distance over all frames / cloth size, and the simulated frames."""
-        with torch.no_grad():
-            x = self.simulate(torch.as_tensor(theta, dtype=torch.float64), self.obs.num_frames, params)
-        err = float((x[1:] - self.x_obs[1:]).norm(dim=-1).mean()) / self.size
-        return err, x.numpy()
+        """Mean vertex distance over all frames / cloth size, and the simulated frames (a
+        plain forward run, as the Gauss-Newton fit scores candidates)."""
+        fabric = self.fabric(theta, "scored") if params is None else self.start.with_parameters(params.detach())
+        x = simulate_frames(self.model, self.obs.num_frames, self.spf, self.dt, fabric=fabric)
+        err = float(np.linalg.norm(x[1:] - self.obs.positions[1:], axis=-1).mean()) / self.size
+        return err, x
 
 
 def _stages(frames: int) -> list[int]:
@@ -202,11 +203,15 @@ def fit_by_optimisation(est: FabricEstimator, method: str, frozen: tuple[str, ..
     return theta
 
 
-def _residual(est: FabricEstimator, theta: np.ndarray, frames: int) -> np.ndarray:
-    """(simulated - observed) / size over frames 1..frames-1, flattened: a plain forward run."""
-    x = simulate_frames(est.model, frames, est.spf, est.dt, fabric=est.fabric(theta, "candidate"))
+def _residual(est: FabricEstimator, theta: np.ndarray, frames: int) -> np.ndarray | None:
+    """(simulated - observed) / size over frames 1..frames-1, flattened: a plain forward
+    run; None when the simulation fails (a candidate too far off to simulate)."""
     est.simulations += 1
     est.steps += (frames - 1) * est.spf
+    try:
+        x = simulate_frames(est.model, frames, est.spf, est.dt, fabric=est.fabric(theta, "candidate"))
+    except SimulationError:
+        return None
     return ((x[1:] - est.obs.positions[1:frames]) / est.size).reshape(-1)
 
 
@@ -225,18 +230,22 @@ def fit_by_gauss_newton(est: FabricEstimator, frozen: tuple[str, ...] = ()) -> n
         est.use_dt(fine_dt if k == len(stages) - 1 else coarse_dt)
         n = (frames - 1) * est.obs.positions.shape[1]
 
-        def cost(r: np.ndarray, th: np.ndarray) -> float:
-            return float(r @ r) / n + PRIOR * float(th @ th)
+        def cost(r: np.ndarray | None, th: np.ndarray) -> float:
+            return float("inf") if r is None else float(r @ r) / n + PRIOR * float(th @ th)
 
         r = _residual(est, theta, frames)
+        if r is None:
+            raise SimulationError(f"fit-fabric: the start fabric does not simulate at dt {est.dt:g} s")
         current = cost(r, theta)
         mu = GN_DAMPING
         for _ in range(iters):
             J = np.zeros((len(r), len(free)))
             for col, g in enumerate(free):
                 th = theta.copy()
-                th[g] += GN_FD_STEP
-                J[:, col] = (_residual(est, th, frames) - r) / GN_FD_STEP
+                step = GN_FD_STEP if th[g] + GN_FD_STEP <= BOUND else -GN_FD_STEP
+                th[g] += step
+                probe = _residual(est, th, frames)
+                J[:, col] = 0.0 if probe is None else (probe - r) / step  # unsimulable: the group is left alone
                 bar.update(1)
             A = J.T @ J + n * PRIOR * np.eye(len(free))
             grad = J.T @ r + n * PRIOR * theta[free]
@@ -335,6 +344,9 @@ def prepare_fit(obs: Observation, dt: float | None = None, progress: bool = Fals
     report: dict = {}
     frozen: tuple[str, ...] = ()
     balance = momentum_estimate(obs, obs.model(start))
+    if balance is None and pin_drift(obs) >= PIN_DRIFT_MIN:
+        report["momentum_balance"] = {"failed": "the pinned vertices drift, but the balance gave no positive density "
+                                                "and stiffness; fitting with the pins held exactly"}
     if balance is not None:
         report["momentum_balance"] = balance.as_dict()
         if obs.handle_stiffness <= 0:

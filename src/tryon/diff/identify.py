@@ -34,7 +34,7 @@ CONSTRAINED = 0.25  # a group the motion pins down within 25 % counts as determi
 
 def identifiability(est, theta: np.ndarray, group_names: tuple[str, ...], free: list[int]) -> dict:
     """The report of the module docstring for the fit `est` (a `FabricEstimator`) at `theta`."""
-    frames = max(3, (est.obs.num_frames + 1) // 2)
+    frames = min(est.obs.num_frames, max(3, (est.obs.num_frames + 1) // 2))
     obs_x = est.obs.positions[:frames]
 
     def residual(th: np.ndarray) -> np.ndarray:
@@ -52,9 +52,11 @@ def identifiability(est, theta: np.ndarray, group_names: tuple[str, ...], free: 
     eigval, eigvec = np.linalg.eigh(JTJ)
     order = np.argsort(eigval)[::-1]
     eigval, eigvec = eigval[order], eigvec[:, order]
-    cov = float(r0 @ r0) * np.linalg.pinv(JTJ, rcond=WEAK)
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     top = max(float(eigval[0]), 1e-300)
+    # the full inverse (a pseudo-inverse would call unseen directions certain): an unseen
+    # direction gives its groups an uncertainty beyond any bound
+    inv = (eigvec / np.maximum(eigval, top * 1e-12)) @ eigvec.T
+    std = np.sqrt(np.maximum(float(r0 @ r0) * np.diag(inv), 0.0))
     directions = []
     for val, vec in zip(eigval, eigvec.T):
         weights = {group_names[g]: float(w) for g, w in zip(free, vec) if abs(w) >= 0.3}

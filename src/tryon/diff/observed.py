@@ -145,6 +145,13 @@ def _vector(data: dict, key: str, source: str, bound: float) -> np.ndarray:
     return value
 
 
+def camera_only(obs: Observation) -> Observation:
+    """`obs` with only what a camera gives: no simulator step, handle stiffness or fabric
+    name (the step falls back to `default_dt`, as when a file has none)."""
+    return Observation(obs.positions, obs.faces, obs.uv, obs.pinned, obs.frame_time, obs.gravity, obs.wind_velocity,
+                       obs.wind_density, obs.wind_drag, default_dt(obs.frame_time), "", 0.0, dt_given=False)
+
+
 def save_observed(path: str | Path, obs: Observation) -> None:
     """Write `obs` as an observed ``.npz`` (atomic)."""
     with atomic_write(path, "wb") as fh:

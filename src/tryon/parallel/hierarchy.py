@@ -21,6 +21,7 @@ and the mass-weighted closest fine state whose coarse-scale part equals a target
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 from dataclasses import dataclass, field
 
@@ -35,7 +36,7 @@ from tryon.parallel.proxy import vertex_normals
 from tryon.sim.mesh import ClothMesh
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
 from tryon.sim.loop import run
-from tryon.sim.model import ClothModel, ClothState, PinGroup
+from tryon.sim.model import ClothModel, ClothState, PinGroup, SoftHandle
 from tryon.sim.obstacles import Obstacle
 from tryon.sim.origin import GridOrigin, PatternMesh, PatternOrigin
 from tryon.sim.scene import Scene, parse_scene
@@ -289,9 +290,11 @@ class Hierarchy:
         h = hashlib.sha1()
         for sc in (self.coarse, self.fine):
             m = sc.model
-            for arr in (m.mesh.x.numpy(), m.faces.numpy(), m.mesh.corner_uv().numpy(), m.pinned.numpy()):
+            held = [h.vertices.numpy() for h in m.handles]
+            for arr in (m.mesh.x.numpy(), m.faces.numpy(), m.mesh.corner_uv().numpy(), m.pinned.numpy(), *held):
                 h.update(np.ascontiguousarray(arr).tobytes())
-            h.update(repr((sc.dt, sc.duration, sc.frame_time, m.fabric.name, m.obstacles.num_vertices)).encode())
+            h.update(repr((sc.dt, sc.duration, sc.frame_time, m.fabric.name, m.obstacles.num_vertices,
+                           [hd.stiffness for hd in m.handles], m.wind.implicit)).encode())
         h.update(repr((self.kind, self.dt_ratio)).encode())
         return h.hexdigest()[:16]
 
@@ -301,10 +304,16 @@ def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: li
     """`model`'s fabric, pins, forces, obstacles and contact settings on another mesh of the
     same cloth (pins keep their vertex indices unless given: with subdivision, coarse vertex
     i is fine vertex i)."""
+    handles = []
     if pins is None:
         pins = [PinGroup(p.vertices.clone(), p.motion) for p in model.pins]
+        handles = [SoftHandle(h.vertices.clone(), h.stiffness, h.motion) for h in model.handles]
+    elif model.handles:
+        raise SceneError("time-parallel simulation does not carry soft handles to a coarser mesh yet; "
+                         "use pins, or run without --parallel")
     return ClothModel(
-        mesh, model.fabric, pins=pins, gravity=tuple(model.gravity.tolist()), wind=model.wind,
+        mesh, model.fabric, pins=pins, handles=handles, gravity=tuple(model.gravity.tolist()),
+        wind=dataclasses.replace(model.wind),
         obstacles=list(model.obstacles.obstacles if obstacles is None else obstacles), collision=copy.copy(model.collision), damping=model.damping,
         stitches=torch.from_numpy(np.asarray(stitches, np.int64).reshape(-1, 2)), stitch_stiffness=model.stitch_stiffness,
         air_damping=model.air_damping,

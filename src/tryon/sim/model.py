@@ -169,14 +169,19 @@ class ClothModel:
     def _check_handles(self) -> None:
         n = self.mesh.num_vertices
         pinned = set(self.pinned.tolist())
+        seen: set[int] = set()
         for k, h in enumerate(self.handles):
-            idx = h.vertices
+            idx = torch.as_tensor(h.vertices, dtype=torch.int64).reshape(-1)
+            h.vertices = idx
             if len(idx) and (int(idx.min()) < 0 or int(idx.max()) >= n):
                 raise SceneError(f"soft handle {k}: vertex indices must lie in [0, {n - 1}]")
             if not (np.isfinite(h.stiffness) and h.stiffness > 0):
                 raise SceneError(f"soft handle {k}: stiffness must be a positive number of N/m, got {h.stiffness}")
             if pinned & set(idx.tolist()):
                 raise SceneError(f"soft handle {k}: a vertex is both pinned and held by a soft handle")
+            if len(set(idx.tolist())) != len(idx) or seen & set(idx.tolist()):
+                raise SceneError(f"soft handle {k}: a vertex is held by more than one soft handle")
+            seen |= set(idx.tolist())
 
     def handle_springs(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The soft handles at time t: vertex indices [h], stiffness per vertex [h] (N/m)
