@@ -245,3 +245,26 @@ def test_gauss_newton_fit_of_a_camera_observation(tmp_path):
                                     "bend_u", "bend_diagonal", "bend_v"}
     eig = [d["relative_eigenvalue"] for d in ident["directions"]]
     assert eig[0] == 1.0 and eig == sorted(eig, reverse=True)
+
+
+def test_scene_files_can_ask_for_soft_handles_and_explicit_wind(tmp_path):
+    from tryon.sim.scene import load_scene
+
+    path = tmp_path / "arcsim.yaml"
+    path.write_text("dt: 0.02\nduration: 0.1\ncloth:\n  grid: {resolution: [5, 5], size: [1.0, 1.0]}\n"
+                    "  fabric: gray-interlock\n  handles:\n    - vertices: [top-left, top-right]\n      stiffness: 1000\n"
+                    "    - vertices: [bottom-left]\n"
+                    "wind: {velocity: [2, 2, 0], implicit: false}\n")
+    scene = load_scene(path)
+    m = scene.model
+    assert [h.stiffness for h in m.handles] == [1000.0] and sorted(m.handles[0].vertices.tolist()) == [20, 24]
+    assert m.pinned.tolist() == [0] and not m.wind.implicit
+    solver = ImplicitEulerSolver(m)
+    state = m.initial_state()
+    for _ in range(5):
+        state, _ = solver.step(state, scene.dt)
+    assert np.abs(state.x[20].numpy() - m.mesh.x[20].numpy()).max() > 0  # the soft corner gives a little
+    assert np.abs(state.x[0].numpy() - m.mesh.x[0].numpy()).max() == 0  # the pinned one does not
+    path.write_text(path.read_text().replace("stiffness: 1000", "stiffness: -1"))
+    with pytest.raises(SceneError, match="stiffness"):
+        load_scene(path)

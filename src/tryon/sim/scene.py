@@ -45,7 +45,7 @@ from tryon.limits import LIMITS, check_limit, check_run
 from tryon.sim import obstacles as obs
 from tryon.sim.integrator import StepOptions
 from tryon.sim.mesh import ClothMesh, grid_corner, grid_mesh, mesh_from_obj
-from tryon.sim.model import ClothModel, CollisionSettings, PinGroup, Wind
+from tryon.sim.model import ClothModel, CollisionSettings, PinGroup, SoftHandle, Wind
 from tryon.sim.origin import ClothOrigin, GridOrigin
 from tryon.sim.scene_schema import (ClothSpec, MotionSpec, ObstacleSpec, SceneSpec, safe_name, validate_scene_spec)
 
@@ -107,14 +107,15 @@ def parse_scene(spec: Any, base_dir: Path | None = None, default_name: str = "sc
     mesh, corner_res = _build_cloth_mesh(s.cloth, base_dir, source)
     check_limit(f"{source}: cloth vertices", mesh.num_vertices, LIMITS.max_vertices, "max_vertices", allow_large)
     fabric = _parse_fabric(s.cloth.fabric)
-    pins = _parse_pins(s.cloth, mesh, corner_res)
+    pins, handles = _parse_pins(s.cloth, mesh, corner_res)
     solver = s.solver
     model = ClothModel(
         mesh,
         fabric,
         pins=pins,
+        handles=handles,
         gravity=s.gravity,
-        wind=Wind(s.wind.velocity, s.wind.density, s.wind.drag) if s.wind else Wind(),
+        wind=Wind(s.wind.velocity, s.wind.density, s.wind.drag, s.wind.implicit) if s.wind else Wind(),
         obstacles=[_build_obstacle(o, i, base_dir, allow_large) for i, o in enumerate(s.obstacles)],
         collision=CollisionSettings(**s.collision.model_dump()) if s.collision else CollisionSettings(),
         damping=solver.damping if solver else 0.0,
@@ -188,13 +189,18 @@ def _vertex_list(items: list, mesh: ClothMesh, corner_res, key: str) -> torch.Te
     return torch.tensor(out, dtype=torch.int64)
 
 
-def _parse_pins(cloth: ClothSpec, mesh: ClothMesh, corner_res) -> list[PinGroup]:
-    groups = []
+def _parse_pins(cloth: ClothSpec, mesh: ClothMesh, corner_res) -> tuple[list[PinGroup], list[SoftHandle]]:
+    """Pins and handles held exactly, and soft handles (a handle with a `stiffness`)."""
+    groups, soft = [], []
     if cloth.pins:
         groups.append(PinGroup(_vertex_list(cloth.pins, mesh, corner_res, "cloth.pins")))
     for k, h in enumerate(cloth.handles):
-        groups.append(PinGroup(_vertex_list(h.vertices, mesh, corner_res, f"cloth.handles[{k}].vertices"), _motion(h.motion)))
-    return groups
+        vertices = _vertex_list(h.vertices, mesh, corner_res, f"cloth.handles[{k}].vertices")
+        if h.stiffness is None:
+            groups.append(PinGroup(vertices, _motion(h.motion)))
+        else:
+            soft.append(SoftHandle(vertices, float(h.stiffness), _motion(h.motion)))
+    return groups, soft
 
 
 def _motion(spec: MotionSpec | None) -> obs.Motion:

@@ -205,6 +205,9 @@ class HandleSpec(SpecModel):
 
     vertices: VertexList = spec_field(..., "vertex indices or grid corner names", "", "list", "at least one", min_length=1)
     motion: MotionSpec | None = spec_field(None, "how the handle moves (default: it stays)", "", "motion")
+    stiffness: Number | None = spec_field(
+        None, "soft handle: a spring of this stiffness per axis pulls the vertices to the handle, as ARCSim's node "
+              "handles (default: held exactly)", "N/m", gt=0, le=1e9)
 
 
 def _fabric_kind(value: Any) -> str | None:
@@ -369,6 +372,8 @@ class WindSpec(SpecModel):
     velocity: Vec3 = spec_field((0.0, 0.0, 0.0), "wind velocity", "m/s", "[x, y, z]")
     density: Number = spec_field(1.0, "air density", "kg/m^3", ge=0, le=100)
     drag: Number = spec_field(0.0, "tangential drag coefficient", "", ge=0, le=100)
+    implicit: StrictBool = spec_field(True, "the wind's velocity Jacobian enters the implicit solve; false: an explicit "
+                                            "force, as ARCSim adds it", "", "true | false")
 
 
 class CollisionSpec(SpecModel):
