@@ -26,20 +26,18 @@ run, and ``<stem>-<run>-frames.png``, ARCSim (top row), `tryon` at the run's ste
 from __future__ import annotations
 
 import dataclasses
-import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
+from tryon.bench.records import one_torch_thread, write_records
 from tryon.diff.observed import Observation, camera_only, load_observed, simulate_frames
 from tryon.diff.fit import prepare_fit
 from tryon.errors import InputFileError, TryonError
 from tryon.fabric.wang2011 import WangFabric
-from tryon.io.atomic import atomic_path, atomic_write
-from tryon.io.json_safe import dumps_json
+from tryon.io.atomic import atomic_path
 from tryon.sim.model import ClothModel
 
 REFERENCE_DIR = Path(__file__).resolve().parent / "reference" / "arcsim_wind"
@@ -208,12 +206,8 @@ def _print_table(records: list[dict]) -> None:
 
 def run_fidelity_bench(json_path: str, reference: str | None = None, pictures: bool = True) -> list[dict]:
     """Run the benchmark (module docstring), print a table and write the records as JSON."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_torch_thread():
         return _run(json_path, reference, pictures)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _run(json_path: str, reference: str | None, pictures: bool) -> list[dict]:
@@ -228,10 +222,6 @@ def _run(json_path: str, reference: str | None, pictures: bool) -> list[dict]:
             _frames_picture(out.with_name(f"{out.stem}-{run.name}-frames.png"), run, frames)
     records += reference_records(runs)
     records.append(summarise(records))
-    host = {"machine": platform.machine(), "python": platform.python_version(), "torch": torch.__version__}
-    for r in records:
-        r.update(host)
     _print_table(records)
-    with atomic_write(json_path) as fh:
-        fh.write(dumps_json(records, indent=2))
+    write_records(json_path, records)
     return records

@@ -16,19 +16,16 @@ these stand in for ARCSim runs of those fabrics.
 from __future__ import annotations
 
 import json
-import platform
 import tempfile
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from tryon.bench.fidelity import REFERENCE_DIR, ReferenceRun, load_reference_runs
+from tryon.bench.records import one_torch_thread, write_records
 from tryon.diff.fit import run_fit_fabric
 from tryon.diff.observed import Observation, camera_only, save_observed, simulate_frames
 from tryon.fabric.presets import load_fabric
-from tryon.io.atomic import atomic_write
-from tryon.io.json_safe import dumps_json
 
 HELD_OUT = ("camel-ponte-roma", "navy-sparkle-sweat", "royal-target")
 REFERENCE_DT = 0.005
@@ -70,12 +67,8 @@ def run_fit_fabric_bench(json_path: str, reference: str | None = None, held_out:
                          all_steps: bool = False, keep: bool = True) -> list[dict]:
     """Fit every observation (module docstring); write the records as JSON, with the fit
     folders next to it (``<stem>-fits/``) when `keep`."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_torch_thread():
         return _run(json_path, reference, held_out, all_steps, keep)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _run(json_path: str, reference: str | None, held_out: tuple[str, ...], all_steps: bool, keep: bool) -> list[dict]:
@@ -95,10 +88,6 @@ def _run(json_path: str, reference: str | None, held_out: tuple[str, ...], all_s
             records.append(_fit(f"{fabric}_dt{REFERENCE_DT}", obs, fabric, "tryon in ARCSim's scene (held out)", folder,
                                 fits_dir))
             print(json.dumps(records[-1]), flush=True)
-    host = {"machine": platform.machine(), "python": platform.python_version(), "torch": torch.__version__}
-    for r in records:
-        r.update(host)
     _print_table(records)
-    with atomic_write(json_path) as fh:
-        fh.write(dumps_json(records, indent=2))
+    write_records(json_path, records)
     return records

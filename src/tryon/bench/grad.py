@@ -13,15 +13,13 @@
 
 from __future__ import annotations
 
-import platform
 import time
 
 import torch
 
 from tryon.diff.qp import STATS
 from tryon.diff.rollout import DiffSimulator
-from tryon.io.atomic import atomic_write
-from tryon.io.json_safe import dumps_json
+from tryon.bench.records import write_records
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import run
 from tryon.sim.scene import Scene, example_spec, parse_scene
@@ -119,11 +117,6 @@ def run_grad_bench(json_path: str, quick: bool = False) -> list[dict]:
     for res in grids:
         records += qp_ablation(res, steps)
     records.append(rollout_ratio(*rollout))
-    host = {"machine": platform.machine(), "python": platform.python_version(), "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "quick": quick}
-    for r in records:
-        r.update(host)
     _print_table(records)
-    with atomic_write(json_path) as fh:
-        fh.write(dumps_json(records, indent=2))
+    write_records(json_path, records, threads=torch.get_num_threads(), quick=quick)
     return records
