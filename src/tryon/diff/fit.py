@@ -36,7 +36,7 @@ import torch
 from scipy.optimize import minimize
 from tqdm import tqdm
 
-from tryon.diff.identify import identifiability
+from tryon.diff.identify import forward_jacobian, identifiability, residual
 from tryon.diff.momentum import PIN_DRIFT_MIN, momentum_estimate, pin_drift
 from tryon.diff.observed import Observation, load_observed, simulate_frames
 from tryon.diff.timestep import choose_dt
@@ -175,9 +175,12 @@ def _stages(frames: int) -> list[int]:
     return sorted({max(2, (frames + 3) // 4), max(2, (frames + 1) // 2), frames})
 
 
-def _coarse_dt(est: FabricEstimator) -> float:
-    """Twice the fit's step when that still divides a frame: the early stages' step."""
-    return est.dt * 2 if est.spf % 2 == 0 else est.dt
+def _schedule(est: FabricEstimator) -> list[tuple[int, float]]:
+    """(frames, time step) per stage: a quarter, half, then all of the frames; the early
+    stages at twice the fit's step when that still divides a frame."""
+    stages = _stages(est.obs.num_frames)
+    coarse = est.dt * 2 if est.spf % 2 == 0 else est.dt
+    return [(frames, est.dt if k == len(stages) - 1 else coarse) for k, frames in enumerate(stages)]
 
 
 def fit_by_optimisation(est: FabricEstimator, method: str, frozen: tuple[str, ...] = ()) -> np.ndarray:
@@ -186,10 +189,10 @@ def fit_by_optimisation(est: FabricEstimator, method: str, frozen: tuple[str, ..
     theta = np.zeros(len(GROUP_NAMES))
     bounds = [(0.0, 0.0) if name in frozen else (-BOUND, BOUND) for name in GROUP_NAMES]
     bar = tqdm(desc=f"fit-fabric ({method})", unit="eval", disable=not est.progress, leave=False)
-    stages = _stages(est.obs.num_frames)
-    fine_dt, coarse_dt = est.dt, _coarse_dt(est)
-    for k, (frames, iters, evals) in enumerate(zip(stages, STAGE_ITERATIONS[-len(stages):], STAGE_EVALUATIONS[-len(stages):])):
-        est.use_dt(fine_dt if k == len(stages) - 1 else coarse_dt)
+    schedule = _schedule(est)
+    for (frames, dt), iters, evals in zip(schedule, STAGE_ITERATIONS[-len(schedule):], STAGE_EVALUATIONS[-len(schedule):]):
+        est.use_dt(dt)
+
         def fun(th: np.ndarray, frames=frames) -> tuple[float, np.ndarray]:
             value, grad = est.value_and_grad(th, frames, method)
             bar.update(1)
@@ -203,18 +206,6 @@ def fit_by_optimisation(est: FabricEstimator, method: str, frozen: tuple[str, ..
     return theta
 
 
-def _residual(est: FabricEstimator, theta: np.ndarray, frames: int) -> np.ndarray | None:
-    """(simulated - observed) / size over frames 1..frames-1, flattened: a plain forward
-    run; None when the simulation fails (a candidate too far off to simulate)."""
-    est.simulations += 1
-    est.steps += (frames - 1) * est.spf
-    try:
-        x = simulate_frames(est.model, frames, est.spf, est.dt, fabric=est.fabric(theta, "candidate"))
-    except SimulationError:
-        return None
-    return ((x[1:] - est.obs.positions[1:frames]) / est.size).reshape(-1)
-
-
 def fit_by_gauss_newton(est: FabricEstimator, frozen: tuple[str, ...] = ()) -> np.ndarray:
     """Levenberg-Marquardt on the same staged loss as `fit_by_optimisation`: per iteration
     one forward run per free group gives the Jacobian by forward differences, then a
@@ -223,30 +214,22 @@ def fit_by_gauss_newton(est: FabricEstimator, frozen: tuple[str, ...] = ()) -> n
     handful where L-BFGS needs tens of gradients. Returns theta."""
     theta = np.zeros(len(GROUP_NAMES))
     free = [k for k, g in enumerate(GROUP_NAMES) if g not in frozen]
-    stages = _stages(est.obs.num_frames)
-    fine_dt, coarse_dt = est.dt, _coarse_dt(est)
+    schedule = _schedule(est)
     bar = tqdm(desc="fit-fabric (gauss-newton)", unit="sim", disable=not est.progress, leave=False)
-    for k, (frames, iters) in enumerate(zip(stages, GN_ITERATIONS[-len(stages):])):
-        est.use_dt(fine_dt if k == len(stages) - 1 else coarse_dt)
+    for (frames, dt), iters in zip(schedule, GN_ITERATIONS[-len(schedule):]):
+        est.use_dt(dt)
         n = (frames - 1) * est.obs.positions.shape[1]
 
         def cost(r: np.ndarray | None, th: np.ndarray) -> float:
             return float("inf") if r is None else float(r @ r) / n + PRIOR * float(th @ th)
 
-        r = _residual(est, theta, frames)
+        r = residual(est, theta, frames)
         if r is None:
             raise SimulationError(f"fit-fabric: the start fabric does not simulate at dt {est.dt:g} s")
         current = cost(r, theta)
         mu = GN_DAMPING
         for _ in range(iters):
-            J = np.zeros((len(r), len(free)))
-            for col, g in enumerate(free):
-                th = theta.copy()
-                step = GN_FD_STEP if th[g] + GN_FD_STEP <= BOUND else -GN_FD_STEP
-                th[g] += step
-                probe = _residual(est, th, frames)
-                J[:, col] = 0.0 if probe is None else (probe - r) / step  # unsimulable: the group is left alone
-                bar.update(1)
+            J = forward_jacobian(est, theta, r, frames, free, GN_FD_STEP, BOUND, progress=bar)
             A = J.T @ J + n * PRIOR * np.eye(len(free))
             grad = J.T @ r + n * PRIOR * theta[free]
             improved = False
@@ -254,7 +237,7 @@ def fit_by_gauss_newton(est: FabricEstimator, frozen: tuple[str, ...] = ()) -> n
                 step = np.linalg.solve(A + mu * np.diag(np.diag(A)), -grad)
                 trial = theta.copy()
                 trial[free] = np.clip(theta[free] + step, -BOUND, BOUND)
-                r_trial = _residual(est, trial, frames)
+                r_trial = residual(est, trial, frames)
                 bar.update(1)
                 if cost(r_trial, trial) < current:
                     theta, r, current, improved = trial, r_trial, cost(r_trial, trial), True

@@ -23,31 +23,52 @@ differences of a 2 s trajectory measure chaos, not sensitivity.
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from tryon.diff.observed import simulate_frames
+from tryon.errors import SimulationError
 
 FD_STEP = 1e-2  # in log-multiplier units: a 1 % change of the group
 WEAK = 1e-4  # eigenvalues of J^T J below this fraction of the largest: directions the motion does not show
 CONSTRAINED = 0.25  # a group the motion pins down within 25 % counts as determined
 
 
+def residual(est, theta: np.ndarray, frames: int) -> np.ndarray | None:
+    """(simulated - observed) / size over frames 1..frames-1 of the fit `est` (a
+    `FabricEstimator`) at `theta`, flattened: a plain forward run, counted in the
+    estimator's work; None when the simulation fails (a candidate too far off)."""
+    est.simulations += 1
+    est.steps += (frames - 1) * est.spf
+    try:
+        x = simulate_frames(est.model, frames, est.spf, est.dt, fabric=est.fabric(theta, "candidate"))
+    except SimulationError:
+        return None
+    return ((x[1:] - est.obs.positions[1:frames]) / est.size).reshape(-1)
+
+
+def forward_jacobian(est, theta: np.ndarray, r: np.ndarray, frames: int, free: list[int], step: float,
+                     bound: float = np.inf, progress=None) -> np.ndarray:
+    """d residual / d theta for the `free` groups by forward differences from `r` (the
+    residual at theta), one simulation each; the step turns back where it would pass
+    `bound`, and a probe that does not simulate leaves its column zero."""
+    J = np.zeros((len(r), len(free)))
+    for col, g in enumerate(free):
+        th = theta.copy()
+        h = step if th[g] + step <= bound else -step
+        th[g] += h
+        probe = residual(est, th, frames)
+        J[:, col] = 0.0 if probe is None else (probe - r) / h
+        if progress is not None:
+            progress.update(1)
+    return J
+
+
 def identifiability(est, theta: np.ndarray, group_names: tuple[str, ...], free: list[int]) -> dict:
     """The report of the module docstring for the fit `est` (a `FabricEstimator`) at `theta`."""
     frames = min(est.obs.num_frames, max(3, (est.obs.num_frames + 1) // 2))
-    obs_x = est.obs.positions[:frames]
-
-    def residual(th: np.ndarray) -> np.ndarray:
-        fab = est.fabric(th, "probe")
-        x = simulate_frames(est.model, frames, est.spf, est.dt, fabric=fab)
-        return ((x[1:] - obs_x[1:]) / est.size).reshape(-1)
-
-    r0 = residual(theta)
-    J = np.zeros((len(r0), len(free)))
-    for col, g in enumerate(free):
-        th = theta.copy()
-        th[g] += FD_STEP
-        J[:, col] = (residual(th) - r0) / FD_STEP
+    r0 = residual(est, theta, frames)
+    if r0 is None:
+        raise SimulationError("identifiability: the fitted fabric does not simulate")
+    J = forward_jacobian(est, theta, r0, frames, free, FD_STEP)
     JTJ = J.T @ J
     eigval, eigvec = np.linalg.eigh(JTJ)
     order = np.argsort(eigval)[::-1]
