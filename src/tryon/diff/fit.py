@@ -37,7 +37,7 @@ from scipy.optimize import minimize
 from tqdm import tqdm
 
 from tryon.diff.identify import forward_jacobian, identifiability, residual
-from tryon.diff.momentum import PIN_DRIFT_MIN, momentum_estimate, pin_drift
+from tryon.diff.momentum import PIN_DRIFT_MIN, frame_kinematics, momentum_estimate, pin_drift
 from tryon.diff.observed import Observation, load_observed, simulate_frames
 from tryon.diff.timestep import choose_dt
 from tryon.diff.rollout import DiffSimulator
@@ -46,7 +46,6 @@ from tryon.fabric.presets import load_fabric, mean_preset_fabric, save_fabric
 from tryon.fabric.wang2011 import WangFabric
 from tryon.io.atomic import atomic_output_dir, atomic_path, atomic_write, check_output_dir
 from tryon.io.json_safe import dumps_json
-from tryon.sim.forces.wind import wind_forces
 from tryon.sim.model import ClothModel
 from tryon.sim.scene import load_scene
 
@@ -255,18 +254,13 @@ def fit_by_gauss_newton(est: FabricEstimator, frozen: tuple[str, ...] = ()) -> n
 def physical_estimate(est: FabricEstimator) -> np.ndarray:
     """Density from Newton's law, linear stretching from the largest mean edge stretch."""
     obs, m = est.obs, est.model
-    tau = obs.frame_time
-    x = torch.from_numpy(obs.positions)
-    free = torch.ones(m.num_vertices, dtype=torch.bool)
-    free[torch.from_numpy(obs.pinned)] = False
+    free = np.ones(m.num_vertices, dtype=bool)
+    free[obs.pinned] = False
     k = min(4, obs.num_frames - 2)
     num = den = 0.0
-    area = m.vertex_area
-    for f in range(1, k + 1):  # central differences on the first frames
-        v = (x[f + 1] - x[f - 1]) / (2 * tau)
-        acc = (x[f + 1] - 2 * x[f] + x[f - 1]) / tau**2
-        fw, _ = wind_forces(x[f], v, m.faces, m.rest_area, torch.as_tensor(obs.wind_velocity), obs.wind_density, obs.wind_drag)
-        r = acc - torch.from_numpy(obs.gravity)
+    area = m.vertex_area.numpy()
+    for _, _, acc, fw in frame_kinematics(obs, m, range(1, k + 1)):  # the first frames
+        r = acc - obs.gravity
         num += float((fw[free] * r[free]).sum())
         den += float((area[free, None] * r[free] ** 2).sum())
     density = num / den if den > 0 and num > 0 else float(est.start.density)

@@ -19,6 +19,7 @@ balance does not determine density and `momentum_estimate` returns None.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,22 +57,30 @@ def pin_drift(obs: Observation) -> float:
     return float(np.linalg.norm(p - p[:1], axis=-1).max())
 
 
-def momentum_estimate(obs: Observation, model: ClothModel) -> MomentumEstimate | None:
-    """Solve the balance of the module docstring; None when the pins do not drift."""
-    if obs.num_frames < 3 or pin_drift(obs) < PIN_DRIFT_MIN:
-        return None
+def frame_kinematics(obs: Observation, model: ClothModel, frames: range) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """(frame, velocities, accelerations, wind forces) [N, 3] per frame of `frames`, from
+    central differences of the observed positions (numpy)."""
     x, tau = obs.positions, obs.frame_time
-    area = model.vertex_area.numpy()
     wind = torch.as_tensor(obs.wind_velocity, dtype=torch.float64)
-    rows, rhs = [], []
-    for t in range(1, obs.num_frames - 1):
+    for t in frames:
         v = (x[t + 1] - x[t - 1]) / (2 * tau)
         a = (x[t + 1] - 2 * x[t] + x[t - 1]) / tau**2
         f_wind, _ = wind_forces(torch.from_numpy(x[t]), torch.from_numpy(v), model.faces, model.rest_area, wind,
                                 obs.wind_density, obs.wind_drag, with_jacobian=False)
+        yield t, v, a, f_wind.numpy()
+
+
+def momentum_estimate(obs: Observation, model: ClothModel) -> MomentumEstimate | None:
+    """Solve the balance of the module docstring; None when the pins do not drift."""
+    if obs.num_frames < 3 or pin_drift(obs) < PIN_DRIFT_MIN:
+        return None
+    x = obs.positions
+    area = model.vertex_area.numpy()
+    rows, rhs = [], []
+    for t, _, a, f_wind in frame_kinematics(obs, model, range(1, obs.num_frames - 1)):
         drift = (x[t, obs.pinned] - x[0, obs.pinned]).sum(0)
         rows.append(np.stack([(area[:, None] * (a - obs.gravity)).sum(0), drift], axis=1))
-        rhs.append(f_wind.numpy().sum(0))
+        rhs.append(f_wind.sum(0))
     M, b = np.concatenate(rows), np.concatenate(rhs)
     scale = np.abs(M).max(0)
     sol, *_ = np.linalg.lstsq(M / scale, b, rcond=None)
