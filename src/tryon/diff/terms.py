@@ -162,11 +162,14 @@ def step_residual(
     """``a^T (dt f - dt^2 H (v + dv) - dt D dv - M dv)`` as a torch scalar (module docstring)."""
     x, v, fab = inp.x, inp.v, inp.fabric
     mass = fab.density * model.vertex_area
+    if model.added_mass is not None:
+        mass = mass + model.added_mass
     u_el = dt * dt * (v + dv) + dt * model.damping * dv  # Rayleigh damping D = c H (elastic part)
-    _, g_mem, h_mem = membrane_forces(x, model.faces, model.Dm_inv, model.rest_area, fab.stretching_stiffness_in_strain)
+    _, g_mem, h_mem = membrane_forces(x, model.faces, model.Dm_inv, model.rest_area,
+                                      model.stretching_law(fab.stretching_stiffness_in_strain))
     _, g_bend, h_bend = bending_forces(
         x, model.hinges, model.hinge_rest_theta, model.hinge_area_sum, model.hinge_edge_dir_uv,
-        fab.bending_stiffness_in_curvature,
+        model.bending_law(fab.bending_stiffness_in_curvature),
     )
     af, ah = a[model.faces].reshape(len(model.faces), -1), a[model.hinges].reshape(len(model.hinges), -1)
     out = -dt * ((g_mem * af).sum() + (g_bend * ah).sum())

@@ -33,9 +33,10 @@ def potential_energy(model, x: np.ndarray) -> dict[str, float]:
     xt = torch.from_numpy(np.ascontiguousarray(x))
     fab = model.fabric
     with torch.no_grad():
-        e_mem, _, _ = membrane_forces(xt, model.faces, model.Dm_inv, model.rest_area, fab.stretching_stiffness, with_hessian=False)
+        e_mem, _, _ = membrane_forces(xt, model.faces, model.Dm_inv, model.rest_area, model.stretching_law(fab.stretching_stiffness),
+                                      with_hessian=False)
         e_bend, _, _ = bending_forces(xt, model.hinges, model.hinge_rest_theta, model.hinge_area_sum, model.hinge_edge_dir_uv,
-                                      fab.bending_stiffness, with_hessian=False)
+                                      model.bending_law(fab.bending_stiffness), with_hessian=False)
     mass = model.mass().numpy()
     e_grav = float(-(mass[:, None] * model.gravity.numpy()[None] * x).sum())
     return {"membrane_J": float(e_mem.sum()), "bending_J": float(e_bend.sum()), "gravity_J": e_grav,

@@ -304,6 +304,9 @@ def _model_on(model: ClothModel, mesh: ClothMesh, stitches: np.ndarray, pins: li
     """`model`'s fabric, pins, forces, obstacles and contact settings on another mesh of the
     same cloth (pins keep their vertex indices unless given: with subdivision, coarse vertex
     i is fine vertex i)."""
+    if model.regions:
+        raise SceneError("time-parallel simulation does not carry material regions (prints, patches) to other "
+                         "meshes yet; run without --parallel")
     handles = []
     if pins is None:
         pins = [PinGroup(p.vertices.clone(), p.motion) for p in model.pins]

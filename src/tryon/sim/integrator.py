@@ -265,9 +265,9 @@ class ImplicitEulerSolver:
         H = self.pattern.zeros()
         D = self.pattern.zeros()
         with torch.no_grad():
-            _, g_mem, h_mem = membrane_forces(x, m.faces, m.Dm_inv, m.rest_area, fab.stretching_stiffness)
+            _, g_mem, h_mem = membrane_forces(x, m.faces, m.Dm_inv, m.rest_area, m.stretching_law(fab.stretching_stiffness))
             _, g_bend, h_bend = bending_forces(
-                x, m.hinges, m.hinge_rest_theta, m.hinge_area_sum, m.hinge_edge_dir_uv, fab.bending_stiffness
+                x, m.hinges, m.hinge_rest_theta, m.hinge_area_sum, m.hinge_edge_dir_uv, m.bending_law(fab.bending_stiffness)
             )
             wind_v = m.wind.velocity if control is None or control.wind_velocity is None else control.wind_velocity
             f_wind, d_wind = wind_forces(

@@ -66,6 +66,19 @@ class SoftHandle:
 
 
 @dataclass
+class MaterialRegion:
+    """Part of the cloth made of more than the fabric (a screen print, a patch): its faces
+    [k], multipliers of the fabric's membrane and bending stiffness there, and the areal
+    density it adds (kg/m^2). Overlapping regions multiply stiffness and add density."""
+
+    faces: torch.Tensor
+    stretch_scale: float = 1.0
+    bend_scale: float = 1.0
+    added_density: float = 0.0  # kg/m^2
+    name: str = "region"
+
+
+@dataclass
 class ClothState:
     x: torch.Tensor
     v: torch.Tensor
@@ -110,6 +123,7 @@ class ClothModel:
         stitch_stiffness: float = 0.0,
         air_damping: float = 0.0,
         handles: list[SoftHandle] | None = None,
+        regions: list[MaterialRegion] | None = None,
     ):
         self.mesh = mesh
         self.fabric = fabric
@@ -124,8 +138,8 @@ class ClothModel:
         corners = mesh.corner_uv()
         F = corners.shape[0]
         self.Dm_inv, self.rest_area = rest_state(corners.reshape(-1, 2), torch.arange(3 * F).reshape(F, 3))
-        self.hinges, hinge_faces = build_hinges(mesh.faces, return_faces=True)
-        hd = hinge_rest_data_corners(corners, mesh.faces, self.hinges, hinge_faces)
+        self.hinges, self.hinge_faces = build_hinges(mesh.faces, return_faces=True)
+        hd = hinge_rest_data_corners(corners, mesh.faces, self.hinges, self.hinge_faces)
         self.hinge_rest_theta = hd["rest_theta"]
         self.hinge_area_sum = hd["area_sum"]
         self.hinge_edge_dir_uv = hd["edge_dir_uv"]
@@ -136,6 +150,48 @@ class ClothModel:
         self.stitches = self._checked_stitches(stitches)
         self.stitch_stiffness = float(stitch_stiffness)
         self.air_damping = float(air_damping)  # 1/s: force -c m v (still air, e.g. while sewing)
+        self.regions = list(regions or [])
+        self.face_stretch_scale, self.hinge_bend_scale, self.added_mass = self._region_fields()
+
+    def _region_fields(self) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor | None]:
+        """Per-face stretch multipliers [F], per-hinge bend multipliers [H] (the mean of its
+        two faces') and added vertex masses [V] of the material regions (None: no regions)."""
+        if not self.regions:
+            return None, None, None
+        F = self.faces.shape[0]
+        stretch = torch.ones(F, dtype=DTYPE)
+        bend = torch.ones(F, dtype=DTYPE)
+        density = torch.zeros(F, dtype=DTYPE)
+        for k, r in enumerate(self.regions):
+            idx = torch.as_tensor(np.asarray(r.faces), dtype=torch.int64).reshape(-1)
+            r.faces = idx
+            if len(idx) and (int(idx.min()) < 0 or int(idx.max()) >= F):
+                raise SceneError(f"material region {r.name!r}: face indices must lie in [0, {F - 1}]")
+            for what, value, low in (("stretch_scale", r.stretch_scale, 0.0), ("bend_scale", r.bend_scale, 0.0)):
+                if not (np.isfinite(value) and value > low):
+                    raise SceneError(f"material region {r.name!r}: {what} must be a positive number, got {value}")
+            if not (np.isfinite(r.added_density) and r.added_density >= 0):
+                raise SceneError(f"material region {r.name!r}: added_density must be >= 0 kg/m^2, got {r.added_density}")
+            stretch[idx] *= float(r.stretch_scale)
+            bend[idx] *= float(r.bend_scale)
+            density[idx] += float(r.added_density)
+        added = torch.zeros(self.mesh.num_vertices, dtype=DTYPE)
+        added.index_add_(0, self.faces.reshape(-1), (density * self.rest_area / 3).repeat_interleave(3))
+        return stretch, bend[self.hinge_faces].mean(1), added
+
+    def stretching_law(self, law):
+        """`law` (G [F,3] -> k [F,4], a fabric's membrane stiffness) with the regions' multipliers."""
+        if self.face_stretch_scale is None:
+            return law
+        scale = self.face_stretch_scale
+        return lambda G: law(G) * scale[:, None]
+
+    def bending_law(self, law):
+        """`law` (alpha [H], edge_dir_uv [H,2] -> ke [H]) with the regions' multipliers."""
+        if self.hinge_bend_scale is None:
+            return law
+        scale = self.hinge_bend_scale
+        return lambda alpha, d: law(alpha, d) * scale
 
     def _checked_stitches(self, stitches) -> torch.Tensor:
         """Vertex pairs [S,2] pulled together by zero-length springs (sewing seams)."""
@@ -197,8 +253,10 @@ class ClothModel:
         return np.concatenate(idx).astype(np.int64), np.concatenate(k), np.concatenate(tgt)
 
     def mass(self, fabric: Fabric | None = None) -> torch.Tensor:
-        """Lumped vertex masses (kg): areal density times a third of adjacent rest areas."""
-        return (fabric or self.fabric).density * self.vertex_area
+        """Lumped vertex masses (kg): areal density times a third of adjacent rest areas,
+        plus what material regions add."""
+        m = (fabric or self.fabric).density * self.vertex_area
+        return m if self.added_mass is None else m + self.added_mass
 
     def pin_targets(self, t: float) -> torch.Tensor:
         """World positions [k,3] of the pinned vertices at time t (handles follow their motion)."""
