@@ -53,3 +53,28 @@ def test_drape_learned_uses_the_shipped_model(tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert rep["method"] == "learned" and rep["penetration_pct"] < 2.0 and rep["max_strain"] < 1.0
     assert rep["mesh"]["garment_vertices"] == load_shipped("tshirt").hierarchy.n
+
+
+@pytest.mark.slow
+def test_a_printed_shirt_is_refined_with_the_print_and_drawn_with_it(tmp_path):
+    from PIL import Image
+
+    from tryon.bench.prints import logo_image
+
+    png = tmp_path / "logo.png"
+    Image.fromarray(logo_image()).save(png)
+    out = tmp_path / "drape"
+    assert main(["drape", "--height-cm", "168", "--weight-kg", "62", "--gender", "female", "--size", "M", "--method",
+                 "learned", "--refine", "--print", str(png), "--out", str(out), "--quiet"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["print"]["faces"] > 50 and rep["print"]["width_cm"] == 24.0
+    assert rep["penetration_pct"] == 0.0 and (out / "print.png").is_file()
+    front = np.asarray(Image.open(out / "render_front.png").convert("RGB")).astype(int)
+    red = (front[..., 0] > 170) & (front[..., 1] < 90) & (front[..., 2] < 90)
+    rows = np.flatnonzero(red.any(1))
+    assert red.sum() > 500 and rows.mean() < 0.45 * front.shape[0]   # the ring, on the chest
+    back = np.asarray(Image.open(out / "render_back.png").convert("RGB")).astype(int)
+    assert ((back[..., 0] > 170) & (back[..., 1] < 90) & (back[..., 2] < 90)).sum() < 20
+    assert main(["drape", "--garment", "skirt", "--print", str(png), "--height-cm", "168", "--weight-kg", "62",
+                 "--gender", "female", "--out", str(tmp_path / "skirt"), "--quiet"]) == 2
+    assert not (tmp_path / "skirt").exists()

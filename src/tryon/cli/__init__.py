@@ -95,7 +95,8 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     size = None if args.size.lower() in ("mtm", "made-to-measure") else args.size
     out = check_output_dir(args.out, force=args.force)
     req = DrapeRequest(_measurements(args), garment=args.garment, size=size, fabric=args.fabric,
-                       edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time)
+                       edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time,
+                       print_image=args.print_image, print_width_cm=args.print_width_cm)
     req.validate()
     if req.garment_obj is not None:  # a malformed garment is reported before the body is fitted
         from tryon.drape.obj_garment import garment_from_obj
@@ -239,7 +240,7 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric"]
+BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -270,6 +271,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         if not args.data:
             raise TryonError("tryon bench learned needs --data DATASET (a drape dataset from tryon dataset drape)")
         run_learned_bench(args.json, args.data, model_path=args.model, quick=args.quick)
+        return 0
+    if args.what == "print":
+        from tryon.bench.prints import run_print_bench
+
+        if not args.data:
+            raise TryonError("tryon bench print needs --data DATASET (a drape dataset the model was trained on)")
+        run_print_bench(args.json, args.data, model_path=args.model, count=2 if args.quick else 6)
         return 0
     if args.what == "ablations":
         from tryon.bench.ablations import run_ablations
@@ -368,6 +376,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--model", help="a draping model file (tryon train drape) instead of the one shipped for the garment")
     d.add_argument("--refine", action="store_true",
                    help="learned: relax the prediction with the simulator (no vertex inside the body; seconds)")
+    d.add_argument("--print", dest="print_image", metavar="PNG",
+                   help="an image printed on the front panel: drawn on the draped garment, and heavier and stiffer "
+                        "than the fabric where its alpha covers (tshirt, longsleeve, dress)")
+    d.add_argument("--print-width-cm", type=float, default=24.0, help="the print's width on the panel (cm)")
     d.add_argument("--out", default="out/drape", help="output directory")
     d.add_argument("--quiet", action="store_true")
     _force_arg(d)

@@ -86,7 +86,7 @@ class DrapeDatasetSpec:
                 "topology": {"gender": self.topology[0], "size": self.topology[1].upper()},
                 "edge_length": self.edge_length, "ranges": self.ranges.to_dict(),
                 "drape": {k: v for k, v in asdict(DrapeRequest(Measurements(height_cm=170, weight_kg=70))).items() if k not in
-                          ("body", "garment", "size", "fabric", "edge_length")}}
+                          ("body", "garment", "size", "fabric", "edge_length", "print_image", "print_width_cm")}}
         split = {"rule": "by body: extrapolation if BMI >= extrapolation_bmi, else train / val / test drawn per body "
                          "from the seed", "train": self.train_fraction, "val": self.val_fraction,
                  "extrapolation_bmi": self.extrapolation_bmi}
@@ -143,7 +143,7 @@ def build_references(manifest: Manifest, folder: Path, progress: bool = True) ->
             continue
         if progress:
             print(f"reference drape: {spec['garment']} {size} on the {gender} fit model", flush=True)
-        fit, m, pattern = _size_pattern(spec["garment"], gender, size)
+        fit, m, pattern = size_pattern(spec["garment"], gender, size)
         mesh = transfer_mesh(base, pattern)
         start = posed_body(fit.shape, "a", m["crotch_height"])
         garment = dress_cached(pattern, start, fabric, spec["edge_length"], progress=False, mesh=mesh)
@@ -163,7 +163,7 @@ def build_references(manifest: Manifest, folder: Path, progress: bool = True) ->
     return refs
 
 
-def _size_pattern(garment: str, gender: str, size: str):
+def size_pattern(garment: str, gender: str, size: str):
     """The fit model of a standard size, its drafting measurements and the garment's pattern."""
     req = DrapeRequest(Measurements(height_cm=170, weight_kg=70, gender=gender), garment=garment, size=size)
     fit = fit_body(fit_model_measurements(req))
@@ -173,7 +173,7 @@ def _size_pattern(garment: str, gender: str, size: str):
 
 def _base_mesh(spec: dict):
     """The triangulation every size shares: the topology size's own, at the edge length."""
-    _, _, pattern = _size_pattern(spec["garment"], spec["topology"]["gender"], spec["topology"]["size"])
+    _, _, pattern = size_pattern(spec["garment"], spec["topology"]["gender"], spec["topology"]["size"])
     return triangulate_pattern(pattern, spec["edge_length"])
 
 

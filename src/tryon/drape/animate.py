@@ -41,6 +41,23 @@ def load_drape(drape_dir: str | Path) -> dict:
     return load_state(Path(drape_dir) / STATE_FILE)
 
 
+def drape_print(drape_dir: str | Path, state: dict):
+    """(the placed print, the garment it is on) of a drape made with `--print`, else None.
+    The image is the copy the drape wrote (print.png), so the drape folder stands alone."""
+    from tryon.drape.dress import DressedGarment
+    from tryon.garment.prints import GraphicPrint
+
+    request = state["request"]
+    if not request.get("print_image"):
+        return None
+    copy = Path(drape_dir) / "print.png"
+    pattern = Pattern.from_dict(state["pattern"])
+    garment = DressedGarment(state["x"], state["faces"], state["uv"], state["corner_uv"], state["face_panel"], pattern,
+                             np.zeros(0, np.int64))
+    image = copy if copy.is_file() else request["print_image"]
+    return GraphicPrint.load(image, float(request.get("print_width_cm", 24.0))).placed_on(pattern), garment
+
+
 def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.01, duration: float | None = None,
                     blend_time: float = 0.5) -> Scene:
     """The draped garment of `drape_dir` as cloth and its body moving through `motion`
@@ -64,13 +81,16 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
     cloth = ClothMesh(torch.from_numpy(state["x"]), torch.from_numpy(state["uv"]), torch.from_numpy(state["faces"]),
                       name=state["pattern"].get("name", "garment"), face_uv=torch.from_numpy(state["corner_uv"]))
     fabric = load_fabric(request["fabric"])
+    printed = drape_print(drape_dir, state)
     model = ClothModel(cloth, fabric, obstacles=[body],
-                       collision=CollisionSettings(thickness=request["thickness"], friction=request["friction"], self_friction=0.3))
+                       collision=CollisionSettings(thickness=request["thickness"], friction=request["friction"], self_friction=0.3),
+                       regions=[] if printed is None else [printed[0].region(printed[1])])
     total = float(times[-1]) if duration is None else float(duration)
     if total <= 0:
         raise TryonError(f"animation duration must be positive, got {total}")
     spec = {"animation": {"drape": str(Path(drape_dir).resolve()), "motion": str(motion), "dt": dt, "duration": total,
-                          "blend_time": blend_time, "motion_frames": int(body_motion.num_frames)}}
+                          "blend_time": blend_time, "motion_frames": int(body_motion.num_frames),
+                          "print": None if printed is None else printed[0].describe(printed[1])}}
     origin = PatternOrigin(float(request["edge_length"]), np.asarray(state["face_panel"]),
                            functools.partial(remesh_pattern, Pattern.from_dict(state["pattern"])))
     return Scene(name=f"animate-{body_motion.name}", model=model, dt=dt, duration=total, frame_time=FRAME_TIME,
@@ -99,6 +119,17 @@ def render_preview(scene: Scene, positions: np.ndarray, times: np.ndarray, size=
 
     model = scene.model
     colors = fabric_colors(model.fabric.name, model.mesh.uv.numpy())
+    drape_dir = scene.spec["animation"]["drape"]
+    printed = drape_print(drape_dir, load_drape(drape_dir)) if scene.spec["animation"].get("print") else None
+    if printed is not None:  # per vertex: a preview's resolution
+        from tryon.garment.prints import panel_xy
+
+        pr, garment = printed
+        on = np.zeros(len(colors), bool)
+        on[np.unique(garment.faces[pr.touched_faces(garment)])] = True
+        ink = pr.rgba_at(panel_xy(model.mesh.uv.numpy()))
+        a = np.where(on, ink[:, 3], 0.0)[:, None]
+        colors = (1 - a) * colors + a * ink[:, :3]
     faces = model.faces.numpy()
     bodies = [model.obstacles.vertices_at(float(t)) for t in times]
     cam = Camera.fit([np.concatenate([bodies[0], bodies[-1], positions[0]])], "three_quarter", aspect=size[0] / size[1], margin=1.15)

@@ -462,7 +462,7 @@ STILL_AIR_DAMPING = 8.0  # 1/s: dressing moves cloth to its place without swingi
 
 def cloth_on_body(cloth, fabric: Fabric, body, thickness: float, friction: float = 0.0, self_collision: bool = True,
                   self_friction: float = 0.3, still: bool = False, stitches: np.ndarray | None = None,
-                  stitch_stiffness: float = 0.0, pins: list | None = None):
+                  stitch_stiffness: float = 0.0, pins: list | None = None, regions: list | None = None):
     """The `ClothModel` of a garment around a body obstacle, for dressing (`still`: no
     gravity, still-air damping) and draping alike."""
     from tryon.sim.model import ClothModel, CollisionSettings
@@ -472,7 +472,8 @@ def cloth_on_body(cloth, fabric: Fabric, body, thickness: float, friction: float
                       collision=CollisionSettings(thickness=thickness, friction=friction, self_friction=self_friction,
                                                   self_collision=self_collision),
                       stitches=None if stitches is None else torch.from_numpy(stitches),
-                      stitch_stiffness=stitch_stiffness, air_damping=STILL_AIR_DAMPING if still else 0.0)
+                      stitch_stiffness=stitch_stiffness, air_damping=STILL_AIR_DAMPING if still else 0.0,
+                      regions=regions)
 
 
 # --------------------------------------------------------------------------- sewing

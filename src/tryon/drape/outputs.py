@@ -17,6 +17,7 @@ from tryon.io.json_safe import dumps_json
 SKIN = (0.80, 0.68, 0.60)
 CLOTH = (0.27, 0.45, 0.72)
 VIEWS = ("front", "back", "side")
+PRINT_TEXEL = 0.003  # m: triangle size a print is drawn on
 
 
 def face_to_vertex(faces: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -29,10 +30,37 @@ def face_to_vertex(faces: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return acc / np.maximum(cnt, 1)
 
 
-def render_views(body_v, body_f, cloth_v, cloth_f, cloth_colors=None, size=(600, 800), views=VIEWS) -> list[np.ndarray]:
+def garment_look(g, x: np.ndarray, fabric: str, pr=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Vertices, faces, colours and normals (None: the faces' own) that draw garment `g`
+    draped at `x`: the fabric's look, and the placed print `pr` if any, on triangles fine
+    enough for its image (about `PRINT_TEXEL`), shaded with the garment's own smooth normals."""
+    if pr is None:
+        return x, g.faces, fabric_colors(fabric, g.uv), None
+    from tryon.garment.prints import panel_xy
+    from tryon.render.appearance import subdivide_faces
+    from tryon.sim.collision.geometry import vertex_normals
+
+    touched = pr.touched_faces(g)
+    edge = float(np.linalg.norm(g.corner_uv[touched, 1] - g.corner_uv[touched, 0], axis=1).mean())
+    face_of, bary, faces, _ = subdivide_faces(g.faces, touched, len(g.uv), max(1, int(np.ceil(edge / PRINT_TEXEL))))
+    corners = g.faces[face_of]
+    normals = vertex_normals(x, g.faces)
+    x = np.concatenate([x, np.einsum("pk,pkd->pd", bary, x[corners])])
+    n = np.concatenate([normals, np.einsum("pk,pkd->pd", bary, normals[corners])])
+    uv = np.concatenate([g.uv, np.einsum("pk,pkd->pd", bary, g.corner_uv[face_of])])
+    front = np.zeros(len(uv), bool)
+    front[len(g.uv):] = True
+    front[np.unique(g.faces[touched])] = True   # other panels' material coordinates are not the front's
+    ink = pr.rgba_at(panel_xy(uv))
+    a = np.where(front, ink[:, 3], 0.0)[:, None]
+    return x, faces, (1 - a) * fabric_colors(fabric, uv) + a * ink[:, :3], n
+
+
+def render_views(body_v, body_f, cloth_v, cloth_f, cloth_colors=None, size=(600, 800), views=VIEWS,
+                 cloth_normals=None) -> list[np.ndarray]:
     """Body and garment from each named view, framed on the body."""
     body = RenderMesh(body_v, body_f, color=SKIN, two_sided=False)
-    cloth = RenderMesh(cloth_v, cloth_f, color=CLOTH, vertex_colors=cloth_colors)
+    cloth = RenderMesh(cloth_v, cloth_f, color=CLOTH, vertex_colors=cloth_colors, vertex_normals=cloth_normals)
     out = []
     for view in views:
         cam = Camera.fit([body_v, cloth_v], view, aspect=size[0] / size[1], margin=1.05)
@@ -65,6 +93,7 @@ def report_dict(result) -> dict:
                     if g.pattern is not None else {"obj": g.stats.get("source")}),
         "mesh": {"garment_vertices": int(len(g.vertices)), "garment_faces": int(len(g.faces)), "body_vertices": int(len(result.body_vertices))},
         "dressing": g.stats,
+        "print": req.graphic_print(g).describe(g) if req.print_image is not None and g.pattern is not None else None,
         **{k: v for k, v in result.metrics.items()},
         "penetration_pct": result.metrics["penetration_pct"],
         "max_strain": result.metrics["max_strain"],
@@ -85,13 +114,14 @@ def write_outputs(result, out: str | Path, force: bool = False) -> dict:
     g = result.garment
     bv, bf = result.body_vertices, result.body_faces
     report = report_dict(result)
-    colors = fabric_colors(str(result.request.fabric), g.uv)
+    look_v, look_f, look_c, look_n = garment_look(g, result.x, str(result.request.fabric),
+                                                  result.request.graphic_print(g) if g.pattern is not None else None)
     with atomic_output_dir(out, force=force) as tmp:
         write_obj(tmp / "garment.obj", result.x, g.faces, corner_uv=g.corner_uv)  # vt: material coordinates (m)
         write_obj(tmp / "body.obj", bv, bf)
         write_glb(tmp / "tryon.glb", [(bv, bf, SKIN, "body"), (result.x, g.faces, appearance(str(result.request.fabric)).color,
                                                                  "garment")])
-        for view, img in zip(VIEWS, render_views(bv, bf, result.x, g.faces, colors)):
+        for view, img in zip(VIEWS, render_views(bv, bf, look_v, look_f, look_c, cloth_normals=look_n)):
             save_png(tmp / f"render_{view}.png", img)
         save_png(tmp / "fit_map.png", fit_map_image(bv, bf, result.x, g.faces, 100.0 * result.strain,
                                                     vmax=max(10.0, float(np.percentile(100 * result.strain, 99))), label="strain %"))
@@ -105,6 +135,10 @@ def write_outputs(result, out: str | Path, force: bool = False) -> dict:
         save_frames_npz(tmp / "frames.npz", np.stack(result.frames), g.faces, uv=g.uv, times=np.asarray(result.frame_times),
                         body_vertices=bv, body_faces=bf, face_strain=result.strain, vertex_pressure=result.pressure)
         save_state(result, tmp / STATE_FILE)
+        if result.request.print_image is not None:  # the drape folder stands alone (tryon animate reads it)
+            import shutil
+
+            shutil.copyfile(result.request.print_image, tmp / "print.png")
         with atomic_write(tmp / "report.json") as fh:
             fh.write(dumps_json(report, indent=2))
     return report

@@ -38,9 +38,11 @@ from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, draft
 from tryon.drape.dress import DressedGarment, cloth_on_body, dress_cached
+from tryon.garment.prints import PRINT_WIDTH, GraphicPrint
 from tryon.garment.sizes import SIZES, size_measurements
 
 STATE_FILE = "drape_state.npz"
+PRINTABLE = ("tshirt", "longsleeve", "dress")  # garments with a front panel
 DRAPE_SUBSTEP_DEPTH = 1
 # Draping a garment is slow motion: gravity over a couple of seconds and a body changing
 # shape at well under 1 m/s. A vertex faster than this has been flung by a failed solve or
@@ -92,6 +94,21 @@ class DrapeRequest:
     thickness: float = 0.004     # m, contact distance kept from the skin
     friction: float = 0.4        # skin-cloth Coulomb coefficient once the body has its shape
     morph_friction: float = 0.0  # while the body morphs the cloth slides (as when putting it on)
+    print_image: str | None = None  # a PNG printed on the front panel (tryon.garment.prints)
+    print_width_cm: float = 100 * PRINT_WIDTH
+
+    def graphic_print(self, garment: DressedGarment) -> GraphicPrint | None:
+        """The print placed on `garment`'s front panel (None without `print_image`)."""
+        if self.print_image is None:
+            return None
+        if garment.pattern is None:
+            raise TryonError("a print goes on a drafted garment's front panel; an OBJ garment has no panels")
+        return GraphicPrint.load(self.print_image, self.print_width_cm).placed_on(garment.pattern)
+
+    def material_regions(self, garment: DressedGarment) -> list:
+        """What the simulator models beyond the fabric: the print's `MaterialRegion`, if any."""
+        pr = self.graphic_print(garment)
+        return [] if pr is None else [pr.region(garment)]
 
     @property
     def garment_obj(self) -> Path | None:
@@ -113,6 +130,10 @@ class DrapeRequest:
         if self.morph_time is not None and not 0.0 < self.morph_time <= 10.0:
             raise TryonError(f"morph time {self.morph_time} s is outside 0-10 s")
         load_fabric(self.fabric)  # raises FabricError naming the presets
+        if self.print_image is not None:
+            if self.garment_obj is not None or self.garment not in PRINTABLE:
+                raise TryonError(f"a print goes on a front panel: garments {', '.join(PRINTABLE)}, not {self.garment}")
+            GraphicPrint.load(self.print_image, self.print_width_cm)  # raises naming what is wrong with the file
         self.body.validate()
 
 
@@ -253,7 +274,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     frames, times = morph_keyframes(start.vertices, target.vertices, morph_time)
     body = Obstacle("body", start.vertices, start.faces, Motion(keyframes=frames, keyframe_times=times))
     model = cloth_on_body(garment.cloth_mesh(), fabric, body, request.thickness, friction=request.friction,
-                          pins=waistband_pin(garment, frames, times, start.faces))
+                          pins=waistband_pin(garment, frames, times, start.faces), regions=request.material_regions(garment))
     # while the body morphs the cloth slides (as when putting it on), then it holds and
     # settles in still air (a hem's swing dies out; the static equilibrium is the same)
     morphing, holding = Control(friction=request.morph_friction), Control(air_damping=SETTLE_AIR_DAMPING)

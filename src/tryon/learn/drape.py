@@ -52,13 +52,13 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
         from tryon.learn.refine import refine_drape
 
         x, refined = refine_drape(x, garment, target, load_fabric(request.fabric), request.thickness, request.friction,
-                                  request.dt, rest_speed=request.rest_speed)
+                                  request.dt, rest_speed=request.rest_speed, regions=request.material_regions(garment))
         timings["refine_s"] = refined["refine_s"]
     result = DrapeResult(request, person, None, garment, target.vertices, target.faces, x, [x], [0.0], timings=timings)
     t3 = time.perf_counter()
     body = Obstacle("body", target.vertices, target.faces)
     sim_model = cloth_on_body(garment.cloth_mesh(x), load_fabric(request.fabric), body, request.thickness,
-                              friction=request.friction)
+                              friction=request.friction, regions=request.material_regions(garment))
     result.metrics = drape_metrics(result, ImplicitEulerSolver(sim_model))
     result.metrics.update(refined)
     result.metrics["notes"] = model.coverage_notes(request.body.gender, person.achieved["height_cm"], person.achieved["bmi"])

@@ -24,8 +24,10 @@ SETTLE_AIR_DAMPING = 4.0  # 1/s, as the simulated drape's settling
 
 
 def refine_drape(x: np.ndarray, garment: DressedGarment, body: BodyPose, fabric: Fabric, thickness: float = 0.004,
-                 friction: float = 0.4, dt: float = 0.01, max_steps: int = 60, rest_speed: float = 0.02) -> tuple[np.ndarray, dict]:
-    """(refined vertices, stats) of a predicted garment `x` on `body`."""
+                 friction: float = 0.4, dt: float = 0.01, max_steps: int = 60, rest_speed: float = 0.02,
+                 regions: list | None = None) -> tuple[np.ndarray, dict]:
+    """(refined vertices, stats) of a predicted garment `x` on `body`; `regions`: material
+    regions beyond the fabric (a print), which the prediction knows nothing of."""
     from tryon.sim.collision import count_intersections, push_outside
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import SettleTest, run
@@ -35,7 +37,7 @@ def refine_drape(x: np.ndarray, garment: DressedGarment, body: BodyPose, fabric:
     t0 = time.perf_counter()
     x0, moved, _ = push_outside(np.asarray(x, np.float64), body.vertices, body.faces, thickness)
     model = cloth_on_body(garment.cloth_mesh(x0), fabric, Obstacle("body", body.vertices, body.faces), thickness,
-                          friction=friction)
+                          friction=friction, regions=regions)
     crossings, _ = count_intersections(x0, model.faces.numpy(), model.edges.numpy(), body.vertices, body.faces,
                                        model.obstacles.edges)
     at_rest = SettleTest(rest_speed, after=3)

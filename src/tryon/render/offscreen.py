@@ -106,6 +106,7 @@ class RenderMesh:
     two_sided: bool = True
     smooth: bool = True
     wireframe: bool = False
+    vertex_normals: Any = None   # [N,3]: smooth shading with these instead of the faces' own
 
     def __post_init__(self) -> None:
         self.vertices = _as_numpy(self.vertices, np.float64)
@@ -119,6 +120,8 @@ class RenderMesh:
         self.faces = faces.astype(np.int64)
         if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
             raise MeshError(f"render: face indices must lie in [0, {len(self.vertices)})")
+        if self.vertex_normals is not None and np.shape(self.vertex_normals) != self.vertices.shape:
+            raise MeshError(f"render: vertex_normals must be [N, 3] like the vertices, got {np.shape(self.vertex_normals)}")
         if self.vertex_colors is not None and self.face_colors is not None:
             raise MeshError("render: give vertex_colors or face_colors, not both")
         self.color = tuple(_unit_colors(self.color, None, "color"))
@@ -131,7 +134,9 @@ class RenderMesh:
         """Per-corner positions, normals and colours, each ``[F, 3, 3]``."""
         pos = self.vertices[self.faces]
         face_n = np.cross(pos[:, 1] - pos[:, 0], pos[:, 2] - pos[:, 0])  # length = 2 * area
-        if self.smooth:
+        if self.smooth and self.vertex_normals is not None:
+            normals = _normalized(_as_numpy(self.vertex_normals, np.float64).reshape(-1, 3))[self.faces]
+        elif self.smooth:
             vn = np.zeros_like(self.vertices)
             for k in range(3):
                 for axis in range(3):
