@@ -42,6 +42,24 @@ def _cmd_dataset_drape(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset_poses(args: argparse.Namespace) -> int:
+    from tryon.dataset.poses import PoseDatasetSpec, load_pose_dataset, make_pose_dataset
+    from tryon.io.atomic import check_output_dir
+
+    spec = PoseDatasetSpec(garment=args.garment, size=args.size, gender=args.gender, fabric=args.fabric,
+                           edge_length=args.edge_length, count=args.count, frames=args.frames, seed=args.seed,
+                           shard_size=args.shard_size)
+    spec.validate()
+    check_output_dir(args.out, force=args.force)
+    store, report = make_pose_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
+                                      force=args.force, progress=not args.quiet, limit=args.limit)
+    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
+                      "wall_s": round(report.wall_s, 1), "sequences_per_core_hour": round(report.samples_per_core_hour, 1),
+                      **load_pose_dataset(store.folder).summary()}, indent=1))
+    print(f"dataset: {store.folder} (manifest.json, rest.npz, shards/)")
+    return 0
+
+
 def _cmd_dataset_pack(args: argparse.Namespace) -> int:
     from tryon.dataset.loading import load_drape_dataset, pack_dataset
 
@@ -92,6 +110,18 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--seed", type=int, help="body seed (default: the source's + 1000, so no body repeats)")
     _generator_args(r)
     r.set_defaults(func=_cmd_dataset_refine)
+    q = kinds.add_parser("poses", help="one garment on one body through many pose sequences (for tryon train kdsm)")
+    q.add_argument("--garment", default="tshirt", help="tshirt, longsleeve or dress")
+    q.add_argument("--size", default="M", help="the size; the body is its fit model")
+    q.add_argument("--gender", default="female", choices=["female", "male"])
+    q.add_argument("--fabric", default="gray-interlock", help="fabric preset")
+    q.add_argument("--edge-length", type=float, default=0.015, help="garment triangle edge length in metres")
+    q.add_argument("--count", type=int, default=300, help="sequences")
+    q.add_argument("--frames", type=int, default=32, help="poses per sequence (30 per second of motion)")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--shard-size", type=int, default=16, help="sequences per shard file")
+    _generator_args(q)
+    q.set_defaults(func=_cmd_dataset_poses)
     k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control")
     k.add_argument("dataset", help="dataset folder")
     k.add_argument("--out", required=True, help="folder of the copy")

@@ -1,0 +1,146 @@
+"""Pose sequences drawn at random, for datasets of pose-dependent cloth.
+
+Two sources, both returning per-bone rotations [F,J,3,3] at a frame rate (the convention
+of `tryon.body.pose`: rotations about each bone's head in the world frame of Anny's rest
+pose, parents first):
+
+- `varied_motion`: a built-in motion (walk, arm-raise, turn) played faster or slower and
+  with its swing scaled about its first frame, from a random start. Root translation is
+  dropped: the body moves in place.
+- `keyframed_poses`: a few whole-body key poses drawn within joint limits (`LIMITS`:
+  arm direction and elbow, hip direction and knee, spine bend and twist) and joined by
+  smoothstep spherical interpolation.
+
+Angles are degrees in `LIMITS`. Arm elevation is measured from straight down, in the
+plane turned `arm_azimuth` towards the front (0: the side; 90: straight ahead).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tryon.body.anny_model import BodyShape
+from tryon.body.motion import load_motion, slerp_poses, smoothstep
+from tryon.body.pose import axis_angle, identity_pose, rotation_between
+
+LIMITS = {
+    "arm_elevation": (25.0, 150.0),
+    "arm_azimuth": (-30.0, 80.0),
+    "elbow_flexion": (0.0, 110.0),
+    "hip_flexion": (-20.0, 60.0),
+    "hip_abduction": (0.0, 20.0),
+    "knee_flexion": (0.0, 90.0),
+    "spine_bend": (-15.0, 25.0),
+    "spine_side": (-15.0, 15.0),
+    "spine_twist": (-25.0, 25.0),
+}
+FORWARD = np.array([0.0, -1.0, 0.0])   # Anny faces -Y
+SIDES = (("L", 1.0), ("R", -1.0))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _limb(R: np.ndarray, shape: BodyShape, upper: str, lower: str, end: str, target: np.ndarray, bend: float,
+          bend_towards: np.ndarray) -> None:
+    """Point the limb's upper bone along `target` with its joint bent `bend` degrees towards
+    `bend_towards` (in the straight limb's frame), in place in R."""
+    heads = shape.bone_heads.detach().numpy()
+    a, b, c = (shape.bone(x) for x in (upper, lower, end))
+    up, lo = heads[b] - heads[a], heads[c] - heads[b]
+    straight = rotation_between(lo, up)
+    axis = _unit(np.cross(_unit(up), bend_towards))
+    R[b] = axis_angle(np.radians(bend) * axis) @ straight
+    R[a] = rotation_between(up, target)
+
+
+def random_pose(shape: BodyShape, rng: np.random.Generator, tries: int = 50) -> np.ndarray:
+    """One whole-body pose [J,3,3] within `LIMITS` whose arms stay out of the torso
+    (drawn again until they do)."""
+    for _ in range(tries):
+        R = _draw_pose(shape, rng)
+        if not arms_in_torso(shape, R):
+            return R
+    return R
+
+
+def arms_in_torso(shape: BodyShape, R: np.ndarray, margin: float = 0.01) -> bool:
+    """Whether a point of either arm (from a third of the way down the upper arm to the
+    wrist) lies inside the torso: inside the convex hull of the torso's cross-section at
+    its height, `margin` in from its outline."""
+    from scipy.spatial import ConvexHull
+
+    from tryon.body.pose import posed_body
+
+    body = posed_body(shape, R)
+    torso = body.vertices[(body.part == 0) & (body.vertices[:, 2] < body.heads["neck01"][2])]
+    for side, _ in SIDES:
+        a, b, c = (body.heads[f"{x}.{side}"] for x in ("upperarm01", "lowerarm01", "wrist"))
+        points = np.concatenate([a + np.linspace(0.33, 1.0, 5)[:, None] * (b - a),
+                                 b + np.linspace(0.0, 1.0, 6)[:, None] * (c - b)])
+        for p in points:
+            ring = torso[np.abs(torso[:, 2] - p[2]) < 0.02, :2]
+            if len(ring) < 8:
+                continue
+            hull = ConvexHull(ring)
+            if (hull.equations[:, :2] @ p[:2] + hull.equations[:, 2] < -margin).all():
+                return True
+    return False
+
+
+def _draw_pose(shape: BodyShape, rng: np.random.Generator) -> np.ndarray:
+    R = identity_pose(shape)
+    for side, sign in SIDES:
+        e, az = np.radians(rng.uniform(*LIMITS["arm_elevation"])), np.radians(rng.uniform(*LIMITS["arm_azimuth"]))
+        arm = np.array([sign * np.sin(e) * np.cos(az), -np.sin(e) * np.sin(az), -np.cos(e)])
+        _limb(R, shape, f"upperarm01.{side}", f"lowerarm01.{side}", f"wrist.{side}", arm,
+              rng.uniform(*LIMITS["elbow_flexion"]), FORWARD)
+        h, ab = np.radians(rng.uniform(*LIMITS["hip_flexion"])), np.radians(rng.uniform(*LIMITS["hip_abduction"]))
+        leg = _unit(np.array([sign * np.sin(ab), -np.sin(h) * np.cos(ab), -np.cos(h) * np.cos(ab)]))
+        _limb(R, shape, f"upperleg01.{side}", f"lowerleg01.{side}", f"foot.{side}", leg,
+              rng.uniform(*LIMITS["knee_flexion"]), -FORWARD)
+    spine = np.radians([rng.uniform(*LIMITS[k]) for k in ("spine_bend", "spine_side", "spine_twist")])
+    bend = axis_angle(np.array([-spine[0], 0.0, 0.0])) @ axis_angle(np.array([0.0, spine[1], 0.0])) \
+        @ axis_angle(np.array([0.0, 0.0, spine[2]]))
+    half = axis_angle(0.5 * _rotvec(bend))
+    R[shape.bone("spine03")] = half
+    R[shape.bone("spine01")] = half
+    return R
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    from tryon.body.pose import matrix_to_axis_angle
+
+    return matrix_to_axis_angle(R[None])[0]
+
+
+def keyframed_poses(shape: BodyShape, rng: np.random.Generator, frames: int, fps: float = 30.0, keys: int = 3,
+                    start: np.ndarray | None = None) -> np.ndarray:
+    """`frames` poses [F,J,3,3]: `keys` random key poses spread over the sequence (the first
+    is `start` if given), joined by smoothstep slerp."""
+    key_poses = [start if start is not None else random_pose(shape, rng)] + [random_pose(shape, rng) for _ in range(keys - 1)]
+    t = np.linspace(0.0, keys - 1.0, frames)
+    out = []
+    for s in t:
+        k = min(int(np.floor(s)), keys - 2)
+        out.append(slerp_poses(key_poses[k], key_poses[k + 1], float(smoothstep(s - k))))
+    return np.stack(out)
+
+
+def varied_motion(shape: BodyShape, name: str, rng: np.random.Generator, frames: int, fps: float = 30.0,
+                  speed: tuple[float, float] = (0.7, 1.4), amplitude: tuple[float, float] = (0.7, 1.3)) -> tuple[np.ndarray, dict]:
+    """`frames` poses [F,J,3,3] of a built-in motion at a random speed and swing, from a
+    random start; and what was drawn."""
+    motion = load_motion(name)
+    poses = motion.pose_matrices(shape)
+    s, a = rng.uniform(*speed), rng.uniform(*amplitude)
+    span = (frames - 1) / fps * s
+    t0 = rng.uniform(0.0, max(motion.duration - span, 0.0))
+    out = []
+    for k in range(frames):
+        u = min((t0 + k * s / fps) * motion.fps, motion.num_frames - 1.0)
+        i = min(int(np.floor(u)), motion.num_frames - 2)
+        R = slerp_poses(poses[i], poses[i + 1], u - i)
+        out.append(slerp_poses(poses[0], R, a))
+    return np.stack(out), {"motion": name, "speed": s, "amplitude": a, "start_s": t0}

@@ -1,0 +1,46 @@
+"""Pose datasets: the rest drape made once, sequences of poses with the cloth simulated
+through them (recorded exactly at the poses), split by sequence, resumable."""
+
+import numpy as np
+import pytest
+
+from tryon.dataset.poses import PoseDatasetSpec, load_pose_dataset, make_pose_dataset, sequence_poses, step_size
+from tryon.errors import TryonError
+
+pytestmark = [pytest.mark.anny, pytest.mark.slow]
+
+
+def test_a_small_pose_dataset_is_made_and_resumed(tmp_path):
+    out = tmp_path / "poses"
+    spec = PoseDatasetSpec(count=2, frames=8, edge_length=0.03, shard_size=2)
+    store, report = make_pose_dataset(spec, out, progress=False)
+    assert report.made == 2 and (out / "rest.npz").exists()
+    data = load_pose_dataset(out)
+    a = data.arrays
+    n = len(data.rest.garment.vertices)
+    assert a["x"].shape == (2, 8, n, 3) and a["pose"].shape[:2] == (2, 8)
+    assert a["ok"].all(), a["error"]
+    assert np.isfinite(a["x"]).all() and np.nanmax(a["penetration_pct"]) == 0.0
+    # the cloth moved with the body from the rest drape
+    assert np.linalg.norm(a["x"][:, -1] - data.rest.garment.vertices, axis=-1).max() > 0.01
+    # the stored poses are the unit's own draw
+    shape = data.rest.shape()
+    from tryon.body.pose import matrix_to_axis_angle
+
+    poses, drawn = sequence_poses(data.manifest, shape, 1)
+    assert np.allclose(a["pose"][1], matrix_to_axis_angle(poses), atol=1e-6) and str(a["source"][1]) == drawn["motion"]
+    # every pose falls on a time step
+    sp = data.manifest.spec
+    assert (sp["slow"] / sp["fps"] / step_size(sp)) == pytest.approx(round(sp["slow"] / sp["fps"] / step_size(sp)))
+    # a larger count adds sequences; the first ones are not made again
+    spec.count = 3
+    _, report = make_pose_dataset(spec, out, progress=False)
+    assert report.made == 1 and report.skipped == 2
+    assert load_pose_dataset(out).summary()["sequences"] == 3
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(TryonError, match="tops and dresses"):
+        PoseDatasetSpec(garment="trousers").validate()
+    with pytest.raises(TryonError, match="out of range"):
+        PoseDatasetSpec(frames=1).validate()
