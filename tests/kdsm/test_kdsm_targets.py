@@ -22,11 +22,11 @@ def poses(tmp_path_factory):
     rows = data.rows()
     assert len(rows) >= 1
     rig = KdsmRig.build(data.rest.garment.vertices, data.rest.garment.faces, data.rest.shape(), cell=0.025)
-    return data, rows, rig
+    return data, rows, rig, out
 
 
 def test_targets_rebuild_the_cloth(poses):
-    data, rows, rig = poses
+    data, rows, rig, folder = poses
     x, p = data.arrays["x"][rows[0]].astype(float), data.arrays["pose"][rows[0]]
     res = sequence_targets(rig, x, p)
     assert np.abs(res["jin-uvn"]["rebuilt"] - x).max() < 1e-9
@@ -40,10 +40,33 @@ def test_targets_rebuild_the_cloth(poses):
 
 
 def test_generation_table_orders_the_methods_as_the_paper(poses):
-    data, rows, rig = poses
+    data, rows, rig, folder = poses
     rows = {r["method"]: r for r in generation_table(rig, data.arrays["x"][rows], data.arrays["pose"][rows])}
     assert set(rows) == {"skinning", "jin-uvn", "kdsm-method1", "kdsm-method2", "kdsm-hybrid"}
     assert rows["kdsm-method1"]["generation_mean_error_cm"] < 0.05
     assert rows["kdsm-method2"]["generation_mean_error_cm"] > rows["kdsm-hybrid"]["generation_mean_error_cm"]
     assert rows["kdsm-hybrid"]["max_delta_d_cm"] <= rows["kdsm-method1"]["max_delta_d_cm"] + 1e-9
     assert rows["skinning"]["generation_mean_error_cm"] > rows["kdsm-hybrid"]["generation_mean_error_cm"]
+
+
+def test_training_learns_saves_and_resumes_exactly(poses, tmp_path):
+    from tryon.kdsm.model import KdsmModel
+    from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
+
+    data, rows, rig, folder = poses
+    cfg = KdsmTrainConfig(method="kdsm-hybrid", epochs=6, batch=4, cell=0.025)
+    whole = train_kdsm(folder, tmp_path / "whole", cfg, progress=False)
+    hist = [h["train_loss"] for h in whole.card["history"]]
+    assert hist[-1] < 0.7 * hist[0]
+    assert whole.card["metrics"] and all(np.isfinite(m["mean_error_cm"]) for m in whole.card["metrics"].values())
+    # stopped after 3 epochs, then resumed: the same weights as the run that never stopped
+    assert train_kdsm(folder, tmp_path / "split", cfg, progress=False, max_epochs_this_run=3) is None
+    resumed = train_kdsm(folder, tmp_path / "split", cfg, progress=False)
+    assert [h["val_mean_error_cm"] for h in resumed.card["history"]] == [h["val_mean_error_cm"] for h in whole.card["history"]]
+    for k, v in whole.weights.items():
+        assert np.array_equal(v, resumed.weights[k]), k
+    # the model file alone predicts the garment
+    model = KdsmModel.load(tmp_path / "whole" / "model.npz")
+    x = model.predict(data.arrays["pose"][rows[0]][-1])
+    assert x.shape == rig.x0.shape and np.isfinite(x).all()
+    assert np.linalg.norm(x - data.arrays["x"][rows[0]][-1], axis=1).mean() < 0.1

@@ -1,4 +1,4 @@
-"""`tryon train`: train the learned systems (tryon.learn) on datasets from `tryon dataset`."""
+"""`tryon train`: train the learned systems (tryon.learn, tryon.kdsm) on datasets from `tryon dataset`."""
 
 from __future__ import annotations
 
@@ -19,6 +19,17 @@ def _cmd_train_drape(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train_kdsm(args: argparse.Namespace) -> int:
+    from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
+
+    config = KdsmTrainConfig(method=args.method, epochs=args.epochs, batch=args.batch, lr=args.lr, seed=args.seed,
+                             cell=args.cell)
+    config.validate()
+    model = train_kdsm(args.data, args.out, config, progress=not args.quiet, force=args.force)
+    print(json.dumps({"model": f"{args.out}/model.npz", "method": args.method, "metrics": model.card["metrics"]}, indent=1))
+    return 0
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register `tryon train ...` on the `tryon` parser."""
     t = sub.add_parser("train", help="train a learned model (checkpoints every epoch, resumes)")
@@ -34,3 +45,18 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     p.set_defaults(func=_cmd_train_drape)
+    k = kinds.add_parser("kdsm", help="pose-dependent cloth: the pixel network of one method on a pose dataset "
+                                      "(tryon dataset poses)")
+    k.add_argument("--data", required=True, help="pose dataset folder")
+    k.add_argument("--method", default="kdsm-hybrid",
+                   choices=["jin-uvn", "kdsm-method1", "kdsm-method2", "kdsm-hybrid"],
+                   help="what the network predicts: Jin et al.'s surface offsets or the KDSM's d (three embeddings)")
+    k.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, checkpoint.pt")
+    k.add_argument("--epochs", type=int, default=40)
+    k.add_argument("--batch", type=int, default=16)
+    k.add_argument("--lr", type=float, default=1e-3)
+    k.add_argument("--seed", type=int, default=0)
+    k.add_argument("--cell", type=float, default=0.02, help="the volume's lattice cell (m)")
+    k.add_argument("--quiet", action="store_true")
+    k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    k.set_defaults(func=_cmd_train_kdsm)

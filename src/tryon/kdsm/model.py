@@ -1,0 +1,115 @@
+"""A trained pose-dependent cloth model: the rig (volume, skinning, skin binding, rest
+drape), the pixel network and how its inputs and outputs are scaled, in one `.npz` (no
+pickle) with its card. `predict(pose)` gives the garment in a pose."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tryon.errors import TryonError
+from tryon.io.atomic import atomic_write
+from tryon.kdsm.network import PanelAtlas, PixelNet
+from tryon.kdsm.offsets import SurfaceBinding
+from tryon.kdsm.rig import METHODS, KdsmRig
+from tryon.kdsm.skinning import VolumeSkin
+from tryon.kdsm.volume import TetVolume
+
+
+def pose_features(pose: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """The network's input: the moving bones' joint rotations (3x3 each, flattened [B*9])
+    of a pose given as per-bone axis-angle [J,3]."""
+    from tryon.body.pose import axis_angle
+
+    return axis_angle(np.asarray(pose, np.float64)[bones]).reshape(-1)
+
+
+@dataclass
+class KdsmModel:
+    method: str
+    rig: KdsmRig
+    atlas: PanelAtlas
+    bones: np.ndarray
+    feature_mean: np.ndarray
+    feature_std: np.ndarray
+    target_mean: np.ndarray
+    target_std: np.ndarray
+    weights: dict[str, np.ndarray] = field(default_factory=dict)
+    card: dict = field(default_factory=dict)
+
+    def build_net(self) -> PixelNet:
+        net = PixelNet(len(self.feature_mean), self.atlas.panels)
+        if self.weights:
+            net.load_state_dict({k: torch.from_numpy(np.asarray(v, np.float32)) if v.dtype != np.int64 else torch.from_numpy(v)
+                                 for k, v in self.weights.items()})
+        return net.eval()
+
+    def features(self, pose: np.ndarray) -> np.ndarray:
+        return ((pose_features(pose, self.bones) - self.feature_mean) / self.feature_std).astype(np.float32)
+
+    def values(self, net: PixelNet, feats: np.ndarray) -> np.ndarray:
+        """Per-vertex values [B,n,3] (the method's target units) for features [B,K]."""
+        with torch.no_grad():
+            out = self.atlas.sample(net(torch.from_numpy(np.asarray(feats, np.float32))))
+        return out.numpy().astype(np.float64) * self.target_std + self.target_mean
+
+    def predict(self, pose: np.ndarray, net: PixelNet | None = None) -> np.ndarray:
+        """Garment positions [n,3] in a pose (per-bone axis-angle [J,3])."""
+        G = self.rig.transforms(pose)
+        if self.method == "skinning":
+            return self.rig.skinned(G)
+        value = self.values(net or self.build_net(), self.features(pose)[None])[0]
+        return self.rig.positions(self.method, value, G)
+
+    # -- file
+    def save(self, path: str | Path) -> Path:
+        r = self.rig
+        arrays = {"volume_vertices": r.volume.vertices, "volume_tets": r.volume.tets, "volume_distance": r.volume.distance,
+                  "skin_index": r.skin.index, "skin_weight": r.skin.weight, "skin_rest": r.skin.rest_transforms,
+                  "bind_face": r.binding.face, "bind_bary": r.binding.bary, "x0": r.x0, "faces": r.faces,
+                  "rest_body": r.rest_body, "atlas_panel": self.atlas.panel, "atlas_coords": self.atlas.coords,
+                  "bones": self.bones, "feature_mean": self.feature_mean, "feature_std": self.feature_std,
+                  "target_mean": self.target_mean, "target_std": self.target_std}
+        arrays.update({f"w/{k}": v for k, v in self.weights.items()})
+        meta = {"method": self.method, "cell": r.volume.cell, "panels": self.atlas.panels,
+                "shape_params": r.shape.params.to_dict(), "card": self.card}
+        with atomic_write(path, "wb") as fh:
+            np.savez_compressed(fh, meta=json.dumps(meta), **arrays)
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "KdsmModel":
+        from tryon.body.anny_model import ShapeParams, body_model
+
+        try:
+            d = np.load(path, allow_pickle=False)
+            meta = json.loads(str(d["meta"]))
+        except (OSError, ValueError, KeyError) as exc:
+            raise TryonError(f"{path} is not a KDSM model ({exc}); train one with tryon train kdsm") from None
+        if meta.get("method") not in METHODS:
+            raise TryonError(f"{path}: unknown method {meta.get('method')!r}")
+        shape = body_model().rest_shape(ShapeParams.from_dict(meta["shape_params"])).detached()
+        volume = TetVolume(d["volume_vertices"], d["volume_tets"], d["volume_distance"], float(meta["cell"]))
+        rig = KdsmRig(volume, VolumeSkin(d["skin_index"], d["skin_weight"], d["skin_rest"]),
+                      SurfaceBinding(d["bind_face"], d["bind_bary"]), d["x0"], d["faces"], shape, d["rest_body"])
+        weights = {k[2:]: d[k] for k in d.files if k.startswith("w/")}
+        return cls(meta["method"], rig, PanelAtlas(d["atlas_panel"], d["atlas_coords"], int(meta["panels"])), d["bones"],
+                   d["feature_mean"], d["feature_std"], d["target_mean"], d["target_std"], weights, meta["card"])
+
+
+def timed_prediction(model: KdsmModel, poses: np.ndarray, repeats: int = 20) -> float:
+    """Median milliseconds to predict the garment in one pose (network and reconstruction;
+    the KDSM part locates the material points and skins only their tets)."""
+    net = model.build_net()
+    times = []
+    for k in range(min(repeats, len(poses))):
+        t = time.perf_counter()
+        model.predict(poses[k], net)
+        times.append(1000.0 * (time.perf_counter() - t))
+    return float(np.median(times))
+
