@@ -70,3 +70,33 @@ def test_training_learns_saves_and_resumes_exactly(poses, tmp_path):
     x = model.predict(data.arrays["pose"][rows[0]][-1])
     assert x.shape == rig.x0.shape and np.isfinite(x).all()
     assert np.linalg.norm(x - data.arrays["x"][rows[0]][-1], axis=1).mean() < 0.1
+
+
+def test_enclosed_volume_caps_the_openings():
+    import trimesh
+
+    from tryon.kdsm.evaluate import boundary_loops, enclosed_volume
+
+    m = trimesh.creation.cylinder(radius=0.1, height=0.3, sections=48)
+    open_faces = m.faces[np.abs(m.face_normals[:, 2]) < 0.5]
+    assert len(boundary_loops(open_faces)) == 2
+    assert enclosed_volume(m.vertices, open_faces) == pytest.approx(m.volume, rel=1e-9)
+    moved = m.vertices @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]).T + 0.3
+    assert enclosed_volume(moved, open_faces) == pytest.approx(m.volume, rel=1e-9)
+
+
+def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
+    import json
+
+    from tryon.bench.kdsm import run_kdsm_bench
+    from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
+
+    data, rows, rig, folder = poses
+    train_kdsm(folder, tmp_path / "jin", KdsmTrainConfig(method="jin-uvn", epochs=2, batch=4, cell=0.025), progress=False)
+    recs = run_kdsm_bench(tmp_path / "b" / "kdsm.json", folder, [tmp_path / "jin" / "model.npz"], progress=False)
+    learned = [r for r in recs if r["table"] == "learned"]
+    assert {r["method"] for r in learned} == {"skinning", "jin-uvn"}
+    for r in learned:
+        assert {"method", "split", "mean_error_cm", "std_error_cm", "volume_error_cm3", "inference_ms"} <= set(r)
+        assert np.isfinite(r["mean_error_cm"]) and r["inference_ms"] > 0
+    assert json.loads((tmp_path / "b" / "kdsm.json").read_text())

@@ -240,7 +240,7 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print"]
+BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -271,6 +271,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         if not args.data:
             raise TryonError("tryon bench learned needs --data DATASET (a drape dataset from tryon dataset drape)")
         run_learned_bench(args.json, args.data, model_path=args.model, quick=args.quick)
+        return 0
+    if args.what == "kdsm":
+        from tryon.bench.kdsm import run_kdsm_bench
+
+        if not args.data:
+            raise TryonError("tryon bench kdsm needs --data POSES (a pose dataset from tryon dataset poses) and "
+                             "--models MODEL.npz ... (tryon train kdsm)")
+        run_kdsm_bench(args.json, args.data, args.models or [], stride=4 if args.quick else 1)
         return 0
     if args.what == "print":
         from tryon.bench.prints import run_print_bench
@@ -440,8 +448,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
-    b.add_argument("--data", help="learned: the drape dataset whose test and extrapolation splits are judged")
+    b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged; kdsm: the pose dataset")
     b.add_argument("--model", help="learned: a model file instead of the shipped one")
+    b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm), one per method")
     b.add_argument("--only", nargs="+", metavar="VARIANT", help="ablations: these variants only (default: all)")
     b.add_argument("--epochs", type=int, help="ablations: epochs per variant (default 40; --quick 4)")
     b.add_argument("--reference", metavar="DIR",

@@ -54,3 +54,43 @@ def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: b
             row.update({"mean_delta_d_cm": float(j.mean()), "max_delta_d_cm": float(j.max())})
         rows.append(row)
     return rows
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """The mesh's boundary loops, each as ordered vertex ids (a garment's openings)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, 1)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    directed = e[count[inv.ravel()] == 1]                      # boundary edges, in their face's direction
+    nxt = dict(zip(directed[:, 0].tolist(), directed[:, 1].tolist()))
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        loops.append(np.asarray(loop))
+    return loops
+
+
+def capped_faces(faces: np.ndarray, n: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Faces closing every opening with a fan to a new vertex at the opening's centroid
+    (vertex ids n, n+1, ... in loop order), and the loops."""
+    loops = boundary_loops(faces)
+    caps = []
+    for k, loop in enumerate(loops):
+        c = n + k
+        caps.append(np.stack([loop[1:].tolist() + [loop[0]], loop, np.full(len(loop), c)], 1))
+    return np.concatenate([faces] + caps) if caps else faces, loops
+
+
+def enclosed_volume(x: np.ndarray, faces: np.ndarray, capped: tuple[np.ndarray, list[np.ndarray]] | None = None) -> float:
+    """Volume (m³) the garment encloses with its openings capped (divergence theorem over
+    the closed surface; its sign made positive)."""
+    cf, loops = capped if capped is not None else capped_faces(faces, len(x))
+    pts = np.concatenate([x] + [x[loop].mean(0, keepdims=True) for loop in loops])
+    a, b, c = pts[cf[:, 0]], pts[cf[:, 1]], pts[cf[:, 2]]
+    return abs(float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0)

@@ -105,7 +105,7 @@ class KdsmModel:
 def timed_prediction(model: KdsmModel, poses: np.ndarray, repeats: int = 20) -> float:
     """Median milliseconds to predict the garment in one pose (network and reconstruction;
     the KDSM part locates the material points and skins only their tets)."""
-    net = model.build_net()
+    net = model.build_net() if model.method != "skinning" else None
     times = []
     for k in range(min(repeats, len(poses))):
         t = time.perf_counter()

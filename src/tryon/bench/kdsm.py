@@ -1,0 +1,122 @@
+"""`tryon bench kdsm --data POSES --models DIR... --json OUT`: the KDSM paper's tables on a
+pose dataset.
+
+- Table 1 (`table: generation`): for each method, the cloth rebuilt from its exact target
+  (what a perfect network gives) and how far the target moves between consecutive poses,
+  on the test sequences.
+- Tables 2 and 3 (`table: learned`): every trained model (`tryon train kdsm`), and
+  skinning the rest drape through the volume, on every split: the per-frame mean vertex
+  error (cm; mean and spread over frames), the error of the volume the garment encloses
+  with its openings capped (cm³; mean and spread) and the milliseconds to predict one
+  pose. Every model is judged on the same frames.
+
+Also writes OUT with .png: the error histograms per method (the paper's Figure 8) and,
+for the test frame where the methods differ most, ground truth and each method's garment
+side by side.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tryon.bench.records import write_records
+
+SPLITS = ("train", "val", "test")
+
+
+def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str | Path], stride: int = 1,
+                   progress: bool = True) -> list[dict]:
+    from tryon.dataset.poses import load_pose_dataset
+    from tryon.kdsm.evaluate import capped_faces, enclosed_volume, generation_table
+    from tryon.kdsm.model import KdsmModel, timed_prediction
+    from tryon.kdsm.rig import KdsmRig
+
+    t0 = time.perf_counter()
+    data = load_pose_dataset(data_dir)
+    loaded = [KdsmModel.load(m) for m in models]
+    g = data.rest.garment
+    rig = loaded[0].rig if loaded else KdsmRig.build(g.vertices, g.faces, data.rest.shape())
+    skin_only = KdsmModel("skinning", rig, None, np.zeros(0, np.int64), np.zeros(0), np.ones(0), np.zeros(3), np.ones(3))
+    records = []
+    test_rows = data.rows("test")
+    if len(test_rows):
+        for r in generation_table(rig, data.arrays["x"][test_rows], data.arrays["pose"][test_rows], progress=progress):
+            records.append({"table": "generation", "split": "test", "sequences": int(len(test_rows)), **r})
+    capped = capped_faces(rig.faces, len(rig.x0))
+    per_frame: dict[tuple[str, str], np.ndarray] = {}
+    for model in [skin_only] + loaded:
+        net = model.build_net() if model.method != "skinning" else None
+        for split in SPLITS:
+            rows = data.rows(split)
+            if not len(rows):
+                continue
+            x = data.arrays["x"][rows][:, ::stride].reshape(-1, *data.arrays["x"].shape[2:]).astype(np.float64)
+            poses = data.arrays["pose"][rows][:, ::stride].reshape(-1, *data.arrays["pose"].shape[2:])
+            err, verr = [], []
+            for xf, pose in zip(x, poses):
+                pred = model.predict(pose, net)
+                err.append(100.0 * np.linalg.norm(pred - xf, axis=1).mean())
+                verr.append(1e6 * abs(enclosed_volume(pred, rig.faces, capped) - enclosed_volume(xf, rig.faces, capped)))
+            err, verr = np.asarray(err), np.asarray(verr)
+            per_frame[(model.method, split)] = err
+            records.append({"table": "learned", "method": model.method, "split": split, "frames": int(len(err)),
+                            "mean_error_cm": float(err.mean()), "std_error_cm": float(err.std()),
+                            "volume_error_cm3": float(verr.mean()), "volume_error_std_cm3": float(verr.std()),
+                            "inference_ms": timed_prediction(model, poses), "model": model.card.get("trained", "")})
+            if progress:
+                print(f"kdsm bench: {model.method} {split}: {err.mean():.3f} +- {err.std():.3f} cm, volume "
+                      f"{verr.mean():.0f} cm3 ({time.perf_counter() - t0:.0f} s)", flush=True)
+    write_records(json_path, records, threads=torch.get_num_threads(), data=str(data_dir))
+    _histograms(Path(json_path).with_suffix(".png"), per_frame)
+    if len(test_rows):
+        _side_by_side(Path(json_path).with_name(Path(json_path).stem + "_frames.png"), data, int(test_rows[0]),
+                      [skin_only] + loaded)
+    return records
+
+
+def _histograms(path: Path, per_frame: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tests = {m: e for (m, s), e in per_frame.items() if s == "test"}
+    if not tests:
+        return
+    fig, ax = plt.subplots(figsize=(7, 4))
+    top = max(float(e.max()) for e in tests.values())
+    bins = np.linspace(0.0, top, 40)
+    for m, e in tests.items():
+        ax.hist(e, bins=bins, histtype="step", linewidth=1.5, label=f"{m} ({e.mean():.2f} cm)")
+    ax.set_xlabel("per-frame mean vertex error (cm), test sequences")
+    ax.set_ylabel("frames")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _side_by_side(path: Path, data, row: int, models: list) -> None:
+    """The last pose of one test sequence: the simulated cloth, then each method's."""
+    from tryon.drape.outputs import SKIN
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
+
+    from tryon.bench.prints import _titled
+
+    rig = models[0].rig
+    pose = data.arrays["pose"][row][-1]
+    G = rig.transforms(pose)
+    body = RenderMesh(rig.body(G), rig.shape.faces, color=SKIN, two_sided=False)
+    truth = data.arrays["x"][row][-1].astype(np.float64)
+    garments = {"simulated": truth, **{m.method: m.predict(pose) for m in models}}
+    cam = Camera.fit([rig.body(G)], "three_quarter", aspect=0.75, margin=1.05)
+    tiles = []
+    for name, x in garments.items():
+        err = "" if name == "simulated" else f" {100 * np.linalg.norm(x - truth, axis=1).mean():.2f} cm"
+        img = render_meshes([body, RenderMesh(x, rig.faces, color=(0.56, 0.57, 0.60))], 360, 480, camera=cam)
+        tiles.append(_titled(img, name + err))
+    save_png(path, np.concatenate(tiles, axis=1))
