@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import factorized
 
 from tryon.kdsm.skinning import VolumeSkin
-from tryon.kdsm.volume import TetVolume
+from tryon.kdsm.volume import TetVolume, tet_tree
 
 INSIDE_TOL = 1e-9     # barycentric slack: a point on a shared face belongs to both tets
 HYBRID_THRESHOLD = 0.03  # m: a parent this much farther than Method 2's material point is not trusted
@@ -56,13 +56,13 @@ def tet_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
     return np.concatenate([1.0 - lam.sum(1, keepdims=True), lam], 1)
 
 
-def find_parents(points: np.ndarray, x: np.ndarray, tets: np.ndarray, tol: float = INSIDE_TOL) -> Parents:
-    """All tets (at vertex positions `x`) containing each point."""
-    from tryon.sim.collision.bvh import BVH, element_boxes, overlapping_pairs, point_boxes
+def find_parents(points: np.ndarray, x: np.ndarray, tets: np.ndarray, tol: float = INSIDE_TOL, tree=None) -> Parents:
+    """All tets (at vertex positions `x`) containing each point; `tree`: their BVH if built."""
+    from tryon.sim.collision.bvh import BVH, overlapping_pairs, point_boxes
 
     points = np.ascontiguousarray(points, np.float64)
     x = np.ascontiguousarray(x, np.float64)
-    tree_t = BVH.build(*element_boxes(x, np.ascontiguousarray(tets), 1e-9))
+    tree_t = tree if tree is not None else tet_tree(x, tets)
     tree_p = BVH.build(*point_boxes(points, 0.0))
     pairs = overlapping_pairs(tree_p, tree_t)
     if len(pairs) == 0:
@@ -151,13 +151,25 @@ def embed(x: np.ndarray, posed: np.ndarray, volume: TetVolume, method: str = "me
     return Embedded(tet, bary, material, count)
 
 
-def locate_rest(material: np.ndarray, volume: TetVolume) -> tuple[np.ndarray, np.ndarray]:
+def locate_rest(material: np.ndarray, volume: TetVolume, hint: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Parent tet [n] and barycentric coordinates [n,4] of material points in the rest
     volume (tets do not overlap there: one parent, or a shared face); points outside it
-    are extrapolated from the nearest tet."""
+    are extrapolated from the nearest tet. `hint` [n]: tets to try first (the last
+    frame's parents: in an animation most points stay in theirs)."""
+    material = np.asarray(material, np.float64)
     n = len(material)
-    parents = find_parents(material, volume.vertices, volume.tets)
-    tet, bary = _deepest(parents, n)
+    tet = -np.ones(n, np.int64)
+    bary = np.zeros((n, 4))
+    todo = np.arange(n)
+    if hint is not None:
+        b = tet_barycentric(material, volume.vertices[volume.tets[hint]])
+        kept = b.min(1) >= -INSIDE_TOL
+        tet[kept], bary[kept] = hint[kept], b[kept]
+        todo = np.flatnonzero(~kept)
+    if len(todo):
+        parents = find_parents(material[todo], volume.vertices, volume.tets, tree=volume.tree())
+        t, b = _deepest(parents, len(todo))
+        tet[todo], bary[todo] = t, b
     out = np.flatnonzero(tet < 0)
     if len(out):
         tet[out], bary[out] = nearest_tets(material[out], volume.vertices, volume.tets)
@@ -165,10 +177,11 @@ def locate_rest(material: np.ndarray, volume: TetVolume) -> tuple[np.ndarray, np
 
 
 def reconstruct(material: np.ndarray, volume: TetVolume, skin: VolumeSkin, transforms: np.ndarray,
-                located: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                located: tuple[np.ndarray, np.ndarray] | None = None, hint: np.ndarray | None = None) -> np.ndarray:
     """Cloth positions [n,3] in the pose of bone `transforms` from material points [n,3]:
-    locate them in the rest volume, skin their tets' corners, blend."""
-    tet, bary = located if located is not None else locate_rest(material, volume)
+    locate them in the rest volume (`hint`: tets to try first), skin their tets' corners,
+    blend."""
+    tet, bary = located if located is not None else locate_rest(material, volume, hint)
     corners = np.unique(volume.tets[tet])
     posed = np.zeros_like(volume.vertices)
     posed[corners] = pose_vertices(volume, skin, transforms, corners)

@@ -59,12 +59,19 @@ class KdsmModel:
         return out.numpy().astype(np.float64) * self.target_std + self.target_mean
 
     def predict(self, pose: np.ndarray, net: PixelNet | None = None) -> np.ndarray:
-        """Garment positions [n,3] in a pose (per-bone axis-angle [J,3])."""
+        """Garment positions [n,3] in a pose (per-bone axis-angle [J,3]). Consecutive calls
+        (an animation) try each material point's last parent tet first."""
         G = self.rig.transforms(pose)
         if self.method == "skinning":
             return self.rig.skinned(G)
         value = self.values(net or self.build_net(), self.features(pose)[None])[0]
-        return self.rig.positions(self.method, value, G)
+        if self.method == "jin-uvn":
+            return self.rig.positions(self.method, value, G)
+        from tryon.kdsm.embed import locate_rest
+
+        located = locate_rest(self.rig.x0 + value, self.rig.volume, getattr(self, "_last_tet", None))
+        self._last_tet = located[0]
+        return self.rig.positions(self.method, value, G, located=located)
 
     # -- file
     def save(self, path: str | Path) -> Path:

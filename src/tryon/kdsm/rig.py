@@ -88,13 +88,15 @@ class KdsmRig:
         d = embed(x, posed, self.volume, kind, surface_material=m2).material - self.x0
         return smooth_offsets(d, self.faces, HYBRID_SMOOTHING) if kind == "hybrid" else d
 
-    def positions(self, method: str, value: np.ndarray | None, G: np.ndarray, body: np.ndarray | None = None) -> np.ndarray:
-        """Cloth positions [n,3] from a method's per-vertex value in the pose of G."""
+    def positions(self, method: str, value: np.ndarray | None, G: np.ndarray, body: np.ndarray | None = None,
+                  located: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """Cloth positions [n,3] from a method's per-vertex value in the pose of G (KDSM
+        methods: `located`, the material points' parents if already found)."""
         if method == "skinning":
             return self.skinned(G)
         if method == "jin-uvn":
             return self.binding.positions(value, self.body(G) if body is None else body, self.shape.faces)
-        return reconstruct(self.x0 + value, self.volume, self.skin, G)
+        return reconstruct(self.x0 + value, self.volume, self.skin, G, located=located)
 
 
 def _transforms(shape, rotations: np.ndarray) -> np.ndarray:

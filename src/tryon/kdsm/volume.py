@@ -40,6 +40,12 @@ class TetVolume:
     distance: np.ndarray
     cell: float
 
+    def tree(self):
+        """The BVH over the rest-pose tets, built on first use and kept."""
+        if getattr(self, "_tree", None) is None:
+            self._tree = tet_tree(self.vertices, self.tets)
+        return self._tree
+
     def signed_volumes(self, x: np.ndarray | None = None) -> np.ndarray:
         """Signed volume of every tet [T] at positions `x` (default: the rest pose)."""
         return tet_volumes(self.vertices if x is None else x, self.tets)
@@ -51,6 +57,14 @@ class TetVolume:
     def load(cls, path) -> "TetVolume":
         d = np.load(path)
         return cls(d["vertices"], d["tets"], d["distance"], float(d["cell"]))
+
+
+def tet_tree(x: np.ndarray, tets: np.ndarray):
+    """The BVH over tets at positions `x` (the collision kernels; build once for a volume
+    that does not move)."""
+    from tryon.sim.collision.bvh import BVH, element_boxes
+
+    return BVH.build(*element_boxes(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(tets), 1e-9))
 
 
 def tet_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
