@@ -100,3 +100,28 @@ def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
         assert {"method", "split", "mean_error_cm", "std_error_cm", "volume_error_cm3", "inference_ms"} <= set(r)
         assert np.isfinite(r["mean_error_cm"]) and r["inference_ms"] > 0
     assert json.loads((tmp_path / "b" / "kdsm.json").read_text())
+
+
+def test_animate_with_a_kdsm_model_on_another_body(poses, tmp_path):
+    import json
+
+    from tryon.cli import main
+    from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
+
+    data, rows, rig, folder = poses
+    train_kdsm(folder, tmp_path / "m", KdsmTrainConfig(method="kdsm-hybrid", epochs=2, batch=4, cell=0.025), progress=False)
+    drape = tmp_path / "drape"
+    assert main(["drape", "--height-cm", "170", "--weight-kg", "66", "--gender", "female", "--size", "M", "--edge-length",
+                 "0.03", "--out", str(drape), "--quiet"]) == 0
+    assert main(["animate", str(drape), "--motion", "arm-raise", "--duration", "0.5", "--method", "kdsm", "--model",
+                 str(tmp_path / "m" / "model.npz"), "--quiet"]) == 0
+    out = drape / "animation-arm-raise"
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["transferred_to_another_body"] and rep["frames"] == 16 and rep["ms_per_frame"] > 0
+    frames = np.load(out / "frames.npz")
+    assert frames["positions"].shape == (16, len(rig.x0), 3) and np.isfinite(frames["positions"]).all()
+    # a drape of another garment is refused by name
+    other = tmp_path / "other"
+    assert main(["drape", "--height-cm", "170", "--weight-kg", "66", "--gender", "female", "--size", "M", "--edge-length",
+                 "0.04", "--out", str(other), "--quiet"]) == 0
+    assert main(["animate", str(other), "--method", "kdsm", "--model", str(tmp_path / "m" / "model.npz"), "--quiet"]) == 2

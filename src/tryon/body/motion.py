@@ -28,7 +28,7 @@ from tryon.body.pose import axis_angle, bone_transforms, matrix_to_axis_angle, s
 from tryon.errors import InputFileError, TryonError
 from tryon.limits import LIMITS, check_limit
 
-__all__ = ["BUILTIN_MOTIONS", "BodyMotion", "load_motion", "motion_keyframes", "morph_keyframes", "posed_sequence",
+__all__ = ["BUILTIN_MOTIONS", "BodyMotion", "load_motion", "motion_keyframes", "motion_poses", "morph_keyframes", "posed_sequence",
            "slerp_poses", "smoothstep"]
 
 BUILTIN_MOTIONS = ("walk", "arm-raise", "turn")
@@ -82,9 +82,9 @@ def smoothstep(s: np.ndarray | float) -> np.ndarray | float:
     return s * s * (3 - 2 * s)
 
 
-def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = 0.5,
-                     fps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Skinned body vertices [K,V,3] and their times [K]: `blend_time` seconds from
+def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = 0.5,
+                 fps: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poses [K,J,3,3], root translations [K,3] and times [K]: `blend_time` seconds from
     `start_pose` [J,3,3] into the motion's first frame (smoothstep slerp), then the motion."""
     fps = fps or motion.fps
     if not (MIN_FPS <= fps <= MAX_FPS and 0 <= blend_time <= MAX_BLEND_TIME):
@@ -92,23 +92,28 @@ def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarra
                          f"{MAX_BLEND_TIME:g} s, got fps {fps} and blend_time {blend_time}")
     n_blend = max(1, int(round(blend_time * fps)))
     count = n_blend + int(motion.duration * fps + 1e-9) + 1
-    what = f"motion {motion.name} at {fps:g} fps"
-    check_limit(f"{what}: skinned frames", count, LIMITS.max_frames, "max_frames")
-    check_limit(f"{what}: skinned frames (bytes)", 24 * count * shape.vertices.shape[0], LIMITS.max_memory_bytes,
-                "max_memory_bytes")
+    check_limit(f"motion {motion.name} at {fps:g} fps: frames", count, LIMITS.max_frames, "max_frames")
     poses = motion.pose_matrices(shape)
-    frames, times = [], []
-    verts = shape.vertices.detach()
+    rots, trans, times = [], [], []
     for k in range(n_blend):
-        R = slerp_poses(start_pose, poses[0], float(smoothstep(k / n_blend)))
-        frames.append(skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy())
+        rots.append(slerp_poses(start_pose, poses[0], float(smoothstep(k / n_blend))))
+        trans.append(np.zeros(3))
         times.append(k / fps)
-    t_motion = np.arange(0.0, motion.duration + 1e-9, 1.0 / fps)
-    for t in t_motion:
-        R, trans = _sample(motion, poses, t)
-        frames.append(skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R, trans)).numpy())
+    for t in np.arange(0.0, motion.duration + 1e-9, 1.0 / fps):
+        R, tr = _sample(motion, poses, t)
+        rots.append(R)
+        trans.append(np.asarray(tr, float))
         times.append(n_blend / fps + t)
-    return np.stack(frames), np.asarray(times)
+    return np.stack(rots), np.stack(trans), np.asarray(times)
+
+
+def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = 0.5,
+                     fps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Skinned body vertices [K,V,3] and their times [K] of `motion_poses`."""
+    rots, trans, times = motion_poses(shape, motion, start_pose, blend_time, fps)
+    check_limit(f"motion {motion.name}: skinned frames (bytes)", 24 * len(rots) * shape.vertices.shape[0],
+                LIMITS.max_memory_bytes, "max_memory_bytes")
+    return posed_sequence(shape, rots, trans), times
 
 
 def _sample(motion: BodyMotion, poses: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

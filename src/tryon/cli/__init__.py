@@ -153,6 +153,21 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     from tryon.drape.animate import animate
 
     _check_positive(args, "dt", "duration")
+    if args.method == "kdsm":
+        from tryon.kdsm.animate import kdsm_animate
+
+        if not args.model:
+            raise TryonError("--method kdsm needs --model MODEL.npz (tryon train kdsm)")
+        if args.resume or args.parallel == "time":
+            raise TryonError("--resume and --parallel belong to the simulated animation; a KDSM animation takes seconds")
+        rep = kdsm_animate(args.drape_dir, args.model, args.motion, out=args.out, duration=args.duration,
+                           progress=not args.quiet, force=args.force)
+        print(f"{rep['motion']}: {rep['frames']} frames by {rep['method']} at {rep['ms_per_frame']:.1f} ms per frame "
+              f"({rep['frames_per_second']:.0f} per second); penetration up to {rep['max_penetration_pct']:.2f} % of "
+              f"vertices; {rep['wall_s']:.1f} s")
+        return 0
+    if args.model:
+        raise TryonError("--model belongs to --method kdsm")
     rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume,
                   run=_time_parallel_runner(args), duration=args.duration, force=args.force)
     print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
@@ -414,6 +429,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
     a.add_argument("--duration", type=float, help="simulated seconds (default: the whole motion)")
     a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
+    a.add_argument("--method", choices=["simulate", "kdsm"], default="simulate",
+                   help="simulate the garment, or predict it pose by pose with a trained KDSM model (--model)")
+    a.add_argument("--model", help="kdsm: a model file from tryon train kdsm")
     a.add_argument("--quiet", action="store_true")
     _parallel_args(a)
     _force_arg(a)

@@ -58,20 +58,25 @@ class KdsmModel:
             out = self.atlas.sample(net(torch.from_numpy(np.asarray(feats, np.float32))))
         return out.numpy().astype(np.float64) * self.target_std + self.target_mean
 
-    def predict(self, pose: np.ndarray, net: PixelNet | None = None) -> np.ndarray:
-        """Garment positions [n,3] in a pose (per-bone axis-angle [J,3]). Consecutive calls
-        (an animation) try each material point's last parent tet first."""
-        G = self.rig.transforms(pose)
+    def predict(self, pose: np.ndarray, net: PixelNet | None = None, rig: KdsmRig | None = None,
+                translation: np.ndarray | None = None) -> np.ndarray:
+        """Garment positions [n,3] in a pose (per-bone axis-angle [J,3], and a root
+        translation). `rig`: another body's rig of the same garment (the network's d or
+        offsets applied there: transfer to another body shape). Consecutive calls (an
+        animation) try each material point's last parent tet first."""
+        rig = rig or self.rig
+        G = rig.transforms(pose, translation)
         if self.method == "skinning":
-            return self.rig.skinned(G)
+            return rig.skinned(G)
         value = self.values(net or self.build_net(), self.features(pose)[None])[0]
         if self.method == "jin-uvn":
-            return self.rig.positions(self.method, value, G)
+            return rig.positions(self.method, value, G)
         from tryon.kdsm.embed import locate_rest
 
-        located = locate_rest(self.rig.x0 + value, self.rig.volume, getattr(self, "_last_tet", None))
-        self._last_tet = located[0]
-        return self.rig.positions(self.method, value, G, located=located)
+        hint = getattr(self, "_last_tet", None)
+        located = locate_rest(rig.x0 + value, rig.volume, hint if hint is not None and getattr(self, "_last_rig", None) is rig else None)
+        self._last_tet, self._last_rig = located[0], rig
+        return rig.positions(self.method, value, G, located=located)
 
     # -- file
     def save(self, path: str | Path) -> Path:

@@ -54,11 +54,11 @@ class KdsmRig:
                    shape, body.vertices)
 
     # -- poses
-    def transforms(self, pose: np.ndarray) -> np.ndarray:
-        """Bone transforms [J,4,4] of per-bone axis-angle rotations [J,3]."""
+    def transforms(self, pose: np.ndarray, translation: np.ndarray | None = None) -> np.ndarray:
+        """Bone transforms [J,4,4] of per-bone axis-angle rotations [J,3] (and a root translation)."""
         from tryon.body.pose import axis_angle
 
-        return _transforms(self.shape, axis_angle(np.asarray(pose, np.float64)))
+        return _transforms(self.shape, axis_angle(np.asarray(pose, np.float64)), translation)
 
     def body(self, G: np.ndarray) -> np.ndarray:
         """The body's vertices [V,3] under bone transforms G."""
@@ -99,10 +99,10 @@ class KdsmRig:
         return reconstruct(self.x0 + value, self.volume, self.skin, G, located=located)
 
 
-def _transforms(shape, rotations: np.ndarray) -> np.ndarray:
+def _transforms(shape, rotations: np.ndarray, translation: np.ndarray | None = None) -> np.ndarray:
     import torch
 
     from tryon.body.pose import bone_transforms
 
     with torch.no_grad():
-        return bone_transforms(shape, rotations).numpy()
+        return bone_transforms(shape, rotations, translation).numpy()
