@@ -144,3 +144,17 @@ def varied_motion(shape: BodyShape, name: str, rng: np.random.Generator, frames:
         R = slerp_poses(poses[i], poses[i + 1], u - i)
         out.append(slerp_poses(poses[0], R, a))
     return np.stack(out), {"motion": name, "speed": s, "amplitude": a, "start_s": t0}
+
+
+def random_motion(shape: BodyShape, seed: int, seconds: float = 2.0, fps: float = 30.0, keys_per_second: float = 2.0,
+                  name: str | None = None):
+    """A motion of random key poses (a `BodyMotion`, every bone named) drawn from `seed`:
+    for poses no dataset drawn from other seeds holds."""
+    from tryon.body.motion_data import BodyMotion
+    from tryon.body.pose import matrix_to_axis_angle
+
+    rng = np.random.default_rng([seed, 12345])
+    frames = max(2, int(round(seconds * fps)) + 1)
+    keys = 1 + max(1, int(round(seconds * keys_per_second)))
+    poses = keyframed_poses(shape, rng, frames, fps, keys=keys)
+    return BodyMotion(matrix_to_axis_angle(poses), list(shape.bone_labels), fps, name=name or f"random-{seed}")

@@ -293,7 +293,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         if not args.data:
             raise TryonError("tryon bench kdsm needs --data POSES (a pose dataset from tryon dataset poses) and "
                              "--models MODEL.npz ... (tryon train kdsm)")
-        run_kdsm_bench(args.json, args.data, args.models or [], stride=4 if args.quick else 1)
+        run_kdsm_bench(args.json, args.data, args.models or [], stride=4 if args.quick else 1, drape=args.drape,
+                       motion=args.motion)
         return 0
     if args.what == "print":
         from tryon.bench.prints import run_print_bench
@@ -469,6 +470,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged; kdsm: the pose dataset")
     b.add_argument("--model", help="learned: a model file instead of the shipped one")
     b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm), one per method")
+    b.add_argument("--drape", help="kdsm: a drape of the models' garment to animate against the simulator")
+    b.add_argument("--motion", help="kdsm: the held-out motion (.npz/.bvh; default: random key poses of an unused seed)")
     b.add_argument("--only", nargs="+", metavar="VARIANT", help="ablations: these variants only (default: all)")
     b.add_argument("--epochs", type=int, help="ablations: epochs per variant (default 40; --quick 4)")
     b.add_argument("--reference", metavar="DIR",
