@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from tryon.bench.records import write_records
+from tryon.errors import TryonError
 
 SPLITS = ("train", "val", "test")
 
@@ -44,6 +45,11 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
     data = load_pose_dataset(data_dir)
     loaded = [KdsmModel.load(m) for m in models]
     g = data.rest.garment
+    for path, m in zip(models, loaded):
+        if m.rig.faces.shape != g.faces.shape or not np.array_equal(m.rig.faces, g.faces) \
+                or m.rig.shape.params.to_dict() != data.rest.params.to_dict():
+            raise TryonError(f"the model {path} was not trained on the garment and body of {data_dir}; "
+                             "judge it on its own pose dataset")
     rig = loaded[0].rig if loaded else KdsmRig.build(g.vertices, g.faces, data.rest.shape())
     skin_only = KdsmModel("skinning", rig, None, np.zeros(0, np.int64), np.zeros(0), np.ones(0), np.zeros(3), np.ones(3))
     records = []
@@ -103,19 +109,29 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
     t = time.perf_counter()
     animate(drape_dir, str(motion), out=sim_out, progress=progress, force=True)
     sim_s = time.perf_counter() - t
-    truth = np.load(sim_out / "frames.npz")["positions"]
+    sim = np.load(sim_out / "frames.npz")
     records = []
-    for m in models:
-        out = work / Path(m).parent.name
+    for k, m in enumerate(models):
+        out = work / f"model{k}-{Path(m).parent.name or Path(m).stem}"
         rep = kdsm_animate(drape_dir, m, str(motion), out=out, progress=progress, force=True)
-        pred = np.load(out / "frames.npz")["positions"]
-        n = min(len(pred), len(truth))
-        err = 100.0 * np.linalg.norm(pred[:n] - truth[:n], axis=-1).mean(1)
+        got = np.load(out / "frames.npz")
+        pred, times = got["positions"], got["times"]
+        keep = times <= sim["times"][-1] + 1e-9
+        truth = _at_times(sim["positions"], sim["times"], times[keep])   # the simulated frames at the model's times
+        n = int(keep.sum())
+        err = 100.0 * np.linalg.norm(pred[keep] - truth, axis=-1).mean(1)
         records.append({"table": "heldout-motion", "method": rep["method"], "split": "heldout-motion", "motion": str(motion),
                         "frames": int(n), "mean_error_cm": float(err.mean()), "std_error_cm": float(err.std()),
                         "max_frame_error_cm": float(err.max()), "inference_ms": rep["ms_per_frame"],
                         "transferred_to_another_body": rep["transferred_to_another_body"], "simulation_s": sim_s})
     return records
+
+
+def _at_times(frames: np.ndarray, times: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Frames [T,n,3] at `times` linearly interpolated at the times `at`."""
+    k = np.clip(np.searchsorted(times, at, side="right") - 1, 0, len(times) - 2)
+    s = np.clip((at - times[k]) / np.maximum(times[k + 1] - times[k], 1e-12), 0.0, 1.0)[:, None, None]
+    return (1 - s) * frames[k] + s * frames[k + 1]
 
 
 def _histograms(path: Path, per_frame: dict) -> None:

@@ -5,8 +5,9 @@ For test bodies of a drape dataset, the shirt is simulated again with a print on
 The learned model knows nothing of prints. Its prediction is refined by the simulator
 twice: with the print's material and without. One record per method, against the printed
 simulation: mean vertex error over the garment and over the printed faces' vertices (cm),
-the potential (gravity + stretching + bending with the print's material) relative to the
-printed simulation's, the share of vertices inside the body, and seconds. The record
+the potential (gravity + stretching + bending with the print's material) and its elastic
+part alone (gravity, measured from the floor, dominates the total) relative to the printed
+simulation's, the share of vertices inside the body, and seconds. The record
 `simulated plain` is the dataset's own drape: how far the print moves the shirt at all;
 `print_fold_deg` (the mean bend of the printed area's hinges) says how wrinkled the
 printed area is in each.
@@ -123,7 +124,8 @@ def run_print_bench(json_path: str | Path, data_dir: str | Path, model_path: str
         plain, plain_stats = refine_drape(pred, garment, target, fabric)
         inked, ink_stats = refine_drape(pred, garment, target, fabric, regions=regions)
         cloth = ClothModel(garment.cloth_mesh(), fabric, regions=regions)
-        e_truth = potential_energy(cloth, truth)["total_J"]
+        e_truth = potential_energy(cloth, truth)
+        elastic = lambda e: e["membrane_J"] + e["bending_J"]  # noqa: E731
         printed_hinges = (cloth.hinge_bend_scale > 1.0).numpy()
         plain_sim = test.truth[i].astype(float)
         for method, x, secs in (("simulated print", truth, sim_s), ("simulated plain", plain_sim, float(data.arrays["wall_s"][row])),
@@ -132,7 +134,8 @@ def run_print_bench(json_path: str | Path, data_dir: str | Path, model_path: str
             err = 100.0 * np.linalg.norm(x - truth, axis=1)
             per.setdefault(method, []).append({
                 "mean_error_cm": float(err.mean()), "print_error_cm": float(err[printed_vertices].mean()),
-                "potential_ratio": potential_energy(cloth, x)["total_J"] / e_truth,
+                "potential_ratio": potential_energy(cloth, x)["total_J"] / e_truth["total_J"],
+                "elastic_ratio": elastic(potential_energy(cloth, x)) / elastic(e_truth),
                 "print_fold_deg": _fold_deg(cloth, x, printed_hinges),
                 "interpenetration_pct": penetration(x, target.vertices, target.faces)["penetration_pct"],
                 "seconds": secs, "simulation_s": sim_s, "settled": bool(stats["settled"])})
@@ -148,7 +151,7 @@ def run_print_bench(json_path: str | Path, data_dir: str | Path, model_path: str
     for method, rows in per.items():
         rec = {"method": method, "split": "test", "samples": len(rows), "print_width_cm": width_cm,
                "threads": torch.get_num_threads()}
-        for key in ("mean_error_cm", "print_error_cm", "potential_ratio", "print_fold_deg", "interpenetration_pct", "seconds",
+        for key in ("mean_error_cm", "print_error_cm", "potential_ratio", "elastic_ratio", "print_fold_deg", "interpenetration_pct", "seconds",
                     "simulation_s"):
             rec[key] = float(np.mean([r[key] for r in rows]))
         rec["per_sample"] = rows

@@ -74,6 +74,8 @@ class PoseDatasetSpec:
             raise TryonError("edge length 0.006-0.05 m, slow 1-10 and blend time 0-5 s")
         if not 1 <= self.shard_size <= 4096:
             raise TryonError(f"shard size {self.shard_size} is outside 1-4096 sequences")
+        if self.seed < 0:
+            raise TryonError(f"--seed {self.seed}: give a seed >= 0")
         load_fabric(self.fabric)
 
     def manifest(self, software_version: str) -> Manifest:
@@ -108,15 +110,19 @@ class RestDrape:
         return body_model().rest_shape(self.params).detached()
 
     def save(self, folder: Path) -> None:
+        """rest.json first, rest.npz last (both atomic): rest.npz's presence means both are there."""
+        from tryon.io.atomic import atomic_write
+
+        with atomic_write(folder / "rest.json") as fh:
+            fh.write(json.dumps({"params": self.params.to_dict(), "crotch_height": self.crotch_height}))
         self.garment.save(folder / REST_FILE)
-        (folder / "rest.json").write_text(json.dumps({"params": self.params.to_dict(), "crotch_height": self.crotch_height}))
 
     @classmethod
     def load(cls, folder: Path) -> "RestDrape":
         from tryon.body.anny_model import ShapeParams
         from tryon.drape.dress import DressedGarment
 
-        if not (folder / REST_FILE).exists():
+        if not ((folder / REST_FILE).exists() and (folder / "rest.json").exists()):
             raise DatasetError(f"{folder} holds no rest drape ({REST_FILE}); run `tryon dataset poses` again to make it")
         meta = json.loads((folder / "rest.json").read_text())
         return cls(DressedGarment.load(folder / REST_FILE), ShapeParams.from_dict(meta["params"]), float(meta["crotch_height"]))
@@ -124,7 +130,7 @@ class RestDrape:
 
 def prepare(manifest: Manifest, folder: Path, progress: bool = True) -> RestDrape:
     """Drape the garment on the size's fit model in the A-pose (once; kept in the folder)."""
-    if (folder / REST_FILE).exists():
+    if (folder / REST_FILE).exists() and (folder / "rest.json").exists():
         return RestDrape.load(folder)
     from tryon.body.fit import Measurements
     from tryon.body.measure import drafting_measurements

@@ -392,6 +392,8 @@ def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
         m = drafting_measurements(model_shape)
         pattern = draft(request.garment, m, size=request.size.upper() if request.size else "made-to-measure",
                         meta={"gender": request.body.gender})
+        if request.print_image is not None:  # a print that does not fit is refused before dressing
+            GraphicPrint.load(request.print_image, request.print_width_cm).placed_on(pattern)
         start = posed_body(model_shape, "a", m["crotch_height"])
         garment = dress_cached(pattern, start, load_fabric(request.fabric), request.edge_length, progress=progress)
     timings["dress_s"] = time.perf_counter() - t2

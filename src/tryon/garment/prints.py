@@ -48,7 +48,7 @@ def _load_rgba(path: Path) -> np.ndarray:
                 raise InputFileError(f"print image {path} is {im.size[0]}x{im.size[1]} pixels; at most {MAX_PIXELS} per "
                                      "side (a print needs no more than about 1 mm per pixel)")
             rgba = np.asarray(im.convert("RGBA"), dtype=np.float64) / 255.0
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
+    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, ValueError) as exc:
         raise InputFileError(f"print image {path} cannot be read as an image ({exc}); give a PNG file") from None
     if rgba.ndim != 3 or min(rgba.shape[:2]) < 2:
         raise InputFileError(f"print image {path} has no usable pixels (shape {rgba.shape}); give at least 2x2 pixels")
@@ -103,7 +103,7 @@ class GraphicPrint:
         neck_low = min(float(e.polyline(50)[:, 1].min()) for e in front.edges if e.name.startswith("neck"))
         top = neck_low - self.top_below_neck
         lo = outline[:, 1].min()
-        if top - self.height < lo - 0.5 * self.height:
+        if top - self.height < lo:
             raise TryonError(f"a {100 * self.width:.0f} cm wide print of this image is {100 * self.height:.0f} cm tall; "
                              f"the front panel has {100 * (top - lo):.0f} cm below the neckline: give a smaller --print-width-cm")
         band = outline[np.abs(outline[:, 1] - (top - 0.5 * self.height)) < 0.05]

@@ -107,16 +107,21 @@ class Embedded:
     parents: np.ndarray
 
 
+def _best_per_point(point: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """Index of the highest-scoring row of every point that has rows (ties: the first)."""
+    order = np.lexsort((-score, point))                    # by point, best first
+    first = np.flatnonzero(np.r_[True, point[order][1:] != point[order][:-1]])
+    return order[first]
+
+
 def _deepest(parents: Parents, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Per point, the parent it lies deepest in (largest smallest barycentric coordinate)."""
     tet = -np.ones(n, np.int64)
     bary = np.zeros((n, 4))
-    depth = np.full(n, -np.inf)
-    score = parents.bary.min(1)
-    order = np.argsort(score)              # later (deeper) writes win
-    tet[parents.point[order]] = parents.tet[order]
-    bary[parents.point[order]] = parents.bary[order]
-    depth[parents.point[order]] = score[order]
+    if len(parents.point):
+        pick = _best_per_point(parents.point, parents.bary.min(1))
+        tet[parents.point[pick]] = parents.tet[pick]
+        bary[parents.point[pick]] = parents.bary[pick]
     return tet, bary
 
 
@@ -144,9 +149,9 @@ def embed(x: np.ndarray, posed: np.ndarray, volume: TetVolume, method: str = "me
         p, t, b = parents.point[many], parents.tet[many], parents.bary[many]
         u = np.einsum("kc,kcd->kd", b, volume.vertices[volume.tets[t]])
         gap = np.linalg.norm(u - surface_material[p], axis=1)
-        trusted = gap < threshold                # else Method 1's parent stays
-        order = np.argsort(-gap[trusted])        # the nearest written last
-        tet[p[trusted][order]], bary[p[trusted][order]] = t[trusted][order], b[trusted][order]
+        trusted = np.flatnonzero(gap < threshold)    # else Method 1's parent stays
+        pick = trusted[_best_per_point(p[trusted], -gap[trusted])]
+        tet[p[pick]], bary[p[pick]] = t[pick], b[pick]
     material = np.einsum("nc,ncd->nd", bary, volume.vertices[volume.tets[tet]])
     return Embedded(tet, bary, material, count)
 

@@ -58,6 +58,7 @@ def skin_volume(volume: TetVolume, body_vertices: np.ndarray, body_faces: np.nda
     dense = near.toarray()
     free = ~fixed
     if free.any() and fixed.any():
+        dense[free] = 0.0      # every bone's weight off the skin is its harmonic extension (0 where no anchor has it)
         L = _graph_laplacian(volume.tets, len(volume.vertices))
         A = L[free][:, free].tocsc()
         b = -(L[free][:, fixed] @ dense[fixed])

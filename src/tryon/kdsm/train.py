@@ -44,8 +44,10 @@ class KdsmTrainConfig:
     def validate(self) -> None:
         if self.method not in METHODS or self.method == "skinning":
             raise TryonError(f"--method {self.method!r}: train one of {', '.join(m for m in METHODS if m != 'skinning')}")
-        if not (1 <= self.epochs <= 10_000 and 1 <= self.batch <= 1024 and 0 < self.lr < 1):
-            raise TryonError("epochs 1-10,000, batch 1-1,024 and a learning rate in (0, 1)")
+        if not (1 <= self.epochs <= 10_000 and 1 <= self.batch <= 1024 and 0 < self.lr < 1 and self.seed >= 0):
+            raise TryonError("epochs 1-10,000, batch 1-1,024, a learning rate in (0, 1) and a seed >= 0")
+        if not 0.005 <= self.cell <= 0.1:
+            raise TryonError(f"--cell {self.cell} m is outside 0.005-0.1 m")
 
 
 def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progress: bool = True) -> dict[str, np.ndarray]:

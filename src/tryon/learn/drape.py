@@ -39,6 +39,7 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
     if model is None:
         model = DrapeModel.load(model_path) if model_path else load_shipped(request.garment)
     garment = model.reference_garment(request.body.gender, size)
+    request.graphic_print(garment)  # a print that does not fit is refused before the body is fitted
     timings["load_model_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     person = person or fit_body(request.body)

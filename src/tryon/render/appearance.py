@@ -98,8 +98,7 @@ def subdivide_faces(faces: np.ndarray, face_ids: np.ndarray, num_vertices: int,
     index = np.empty(len(uniq), np.int64)
     index[vertex_of] = uniq[vertex_of, :3].max(1)
     index[new] = num_vertices + np.arange(int(new.sum()))
-    first = np.zeros(len(uniq), np.int64)
-    first[inverse[::-1]] = np.arange(len(inverse))[::-1]         # one (face, point) per unique point
+    _, first = np.unique(inverse, return_index=True)               # one (face, point) per unique point
     f_of, p_of = np.divmod(first[new], len(w))
     sub = index[inverse.reshape(len(face_ids), len(w))]          # [k, p] mesh index of each face's points
     rest = np.setdiff1d(np.arange(len(faces)), face_ids)
