@@ -85,13 +85,16 @@ class KdsmModel:
     # -- file
     def save(self, path: str | Path) -> Path:
         r = self.rig
-        arrays = {"volume_vertices": r.volume.vertices, "volume_tets": r.volume.tets, "volume_distance": r.volume.distance,
-                  "skin_index": r.skin.index, "skin_weight": r.skin.weight, "skin_rest": r.skin.rest_transforms,
+        arrays = {"volume_vertices": r.volume.vertices, "volume_tets": r.volume.tets.astype(np.int32),
+                  "volume_distance": r.volume.distance.astype(np.float32), "skin_index": r.skin.index.astype(np.int16),
+                  "skin_weight": r.skin.weight.astype(np.float32), "skin_rest": r.skin.rest_transforms,
                   "bind_face": r.binding.face, "bind_bary": r.binding.bary, "x0": r.x0, "faces": r.faces,
                   "rest_body": r.rest_body, "atlas_panel": self.atlas.panel, "atlas_coords": self.atlas.coords,
                   "bones": self.bones, "feature_mean": self.feature_mean, "feature_std": self.feature_std,
                   "target_mean": self.target_mean, "target_std": self.target_std}
-        arrays.update({f"w/{k}": v for k, v in self.weights.items()})
+        # the large weight tensors as float16 (inference reads them back as float32)
+        arrays.update({f"w/{k}": v.astype(np.float16) if v.dtype == np.float32 and v.size > 10_000 else v
+                       for k, v in self.weights.items()})
         meta = {"method": self.method, "cell": r.volume.cell, "panels": self.atlas.panels,
                 "shape_params": r.shape.params.to_dict(), "card": self.card}
         with atomic_write(path, "wb") as fh:
@@ -110,8 +113,11 @@ class KdsmModel:
         if meta.get("method") not in METHODS:
             raise TryonError(f"{path}: unknown method {meta.get('method')!r}")
         shape = body_model().rest_shape(ShapeParams.from_dict(meta["shape_params"])).detached()
-        volume = TetVolume(d["volume_vertices"], d["volume_tets"], d["volume_distance"], float(meta["cell"]))
-        rig = KdsmRig(volume, VolumeSkin(d["skin_index"], d["skin_weight"], d["skin_rest"]),
+        volume = TetVolume(d["volume_vertices"], d["volume_tets"].astype(np.int64), d["volume_distance"].astype(np.float64),
+                           float(meta["cell"]))
+        weight = d["skin_weight"].astype(np.float64)
+        weight /= weight.sum(1, keepdims=True)
+        rig = KdsmRig(volume, VolumeSkin(d["skin_index"].astype(np.int64), weight, d["skin_rest"]),
                       SurfaceBinding(d["bind_face"], d["bind_bary"]), d["x0"], d["faces"], shape, d["rest_body"])
         weights = {k[2:]: d[k] for k in d.files if k.startswith("w/")}
         return cls(meta["method"], rig, PanelAtlas(d["atlas_panel"], d["atlas_coords"], int(meta["panels"])), d["bones"],
