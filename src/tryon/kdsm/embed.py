@@ -109,6 +109,8 @@ class Embedded:
 
 def _best_per_point(point: np.ndarray, score: np.ndarray) -> np.ndarray:
     """Index of the highest-scoring row of every point that has rows (ties: the first)."""
+    if len(point) == 0:
+        return np.zeros(0, np.int64)
     order = np.lexsort((-score, point))                    # by point, best first
     first = np.flatnonzero(np.r_[True, point[order][1:] != point[order][:-1]])
     return order[first]
