@@ -124,6 +124,20 @@ class KdsmModel:
                    d["feature_mean"], d["feature_std"], d["target_mean"], d["target_std"], weights, meta["card"])
 
 
+MODELS_DIR = Path(__file__).resolve().parent / "models"
+SHIPPED = "tshirt-M-female"   # the garment and body of the shipped models' pose dataset
+
+
+def shipped_model_path(method: str = "kdsm-hybrid") -> Path:
+    """The model of `method` that ships with tryon (the T-shirt M on the female fit model)."""
+    path = MODELS_DIR / f"{SHIPPED}-{method}.npz"
+    if not path.is_file():
+        known = sorted(p.stem for p in MODELS_DIR.glob("*.npz"))
+        raise TryonError(f"no KDSM model of {method!r} ships with tryon (shipped: {', '.join(known) or 'none'}); "
+                         "train one with tryon train kdsm and pass --model")
+    return path
+
+
 def timed_prediction(model: KdsmModel, poses: np.ndarray, repeats: int = 20) -> float:
     """Median milliseconds to predict the garment in one pose, over consecutive `poses` as
     an animation plays them (network and reconstruction; the KDSM part locates the

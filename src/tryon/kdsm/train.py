@@ -163,7 +163,26 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     best.save(out / "model.npz")
     with atomic_write(out / "model_card.json") as fh:
         json.dump(best.card, fh, indent=1)
+    with atomic_write(out / "MODEL_CARD.md") as fh:
+        fh.write(card_markdown(best.card))
     return best
+
+
+def card_markdown(card: dict) -> str:
+    """The model card as a short page: data, split, settings and the error per split."""
+    spec = card["manifest"]["spec"]
+    lines = [f"# KDSM model: {card['method']}", "",
+             f"- Data: `tryon dataset poses`, {spec['garment']} {spec['size']} on the {spec['gender']} fit model, "
+             f"{spec['fabric']}, {spec['edge_length']} m edges, sequences of {spec['frames']} poses at {spec['fps']:g} fps "
+             f"(seed {card['manifest']['seed']}, generator version {card['manifest']['generator_version']}).",
+             f"- Split by sequence: {card['manifest']['split']['rule']}.",
+             f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']}, seed "
+             f"{card['config']['seed']}, volume cell {card['config']['cell']} m, {card['bones']} moving bones as input; "
+             f"selected on {card['selected_on']}; {card['training_s'] / 60:.0f} min here.", "",
+             "| split | sequences | frames | mean error (cm) | std over frames (cm) |", "|---|---:|---:|---:|---:|"]
+    for split, m in card["metrics"].items():
+        lines.append(f"| {split} | {m['sequences']} | {m['frames']} | {m['mean_error_cm']:.3f} | {m['std_error_cm']:.3f} |")
+    return "\n".join(lines) + "\n"
 
 
 def frame_errors(model: KdsmModel, ex: dict, rows: np.ndarray, net=None, batch: int = 32) -> np.ndarray:
