@@ -156,11 +156,12 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     if args.method == "kdsm":
         from tryon.kdsm.animate import kdsm_animate
 
+        if not args.model:
+            raise TryonError("--method kdsm needs --model MODEL.npz: a model trained (tryon train kdsm) on this machine's "
+                             "pose dataset of the drape's garment (docs/KDSM.md)")
         if args.resume or args.parallel == "time":
             raise TryonError("--resume and --parallel belong to the simulated animation; a KDSM animation takes seconds")
-        from tryon.kdsm.model import shipped_model_path
-
-        rep = kdsm_animate(args.drape_dir, args.model or shipped_model_path(), args.motion, out=args.out, duration=args.duration,
+        rep = kdsm_animate(args.drape_dir, args.model, args.motion, out=args.out, duration=args.duration,
                            progress=not args.quiet, force=args.force)
         print(f"{rep['motion']}: {rep['frames']} frames by {rep['method']} at {rep['ms_per_frame']:.1f} ms per frame "
               f"({rep['frames_per_second']:.0f} per second); penetration up to {rep['max_penetration_pct']:.2f} % of "
@@ -432,8 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
     a.add_argument("--method", choices=["simulate", "kdsm"], default="simulate",
                    help="simulate the garment, or predict it pose by pose with a trained KDSM model (--model)")
-    a.add_argument("--model", help="kdsm: a model file from tryon train kdsm (default: the shipped hybrid KDSM of the "
-                                   "T-shirt M)")
+    a.add_argument("--model", help="kdsm: a model file from tryon train kdsm")
     a.add_argument("--quiet", action="store_true")
     _parallel_args(a)
     _force_arg(a)

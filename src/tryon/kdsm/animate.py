@@ -43,9 +43,10 @@ def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "w
     model = KdsmModel.load(model_path)
     faces = np.asarray(state["faces"])
     if faces.shape != model.rig.faces.shape or not np.array_equal(faces, model.rig.faces):
-        raise TryonError(f"the drape in {drape_dir} is a {state['request']['garment']} of {len(state['x'])} vertices; the "
-                         f"model {model_path} knows one garment of {len(model.rig.x0)} vertices (its pose dataset's size and "
-                         "edge length): drape that garment, e.g. --size M --edge-length 0.015")
+        raise TryonError(f"the drape in {drape_dir} ({state['request']['garment']}, {len(state['x'])} vertices) is not on the "
+                         f"triangulation of the model {model_path} ({len(model.rig.x0)} vertices): drape the model's garment "
+                         "(its pose dataset's size and edge length, e.g. --size M --edge-length 0.015) on the machine the "
+                         "model's pose dataset was made on")
     params = ShapeParams.from_dict(state["body_params"])
     shape = body_model().rest_shape(params).detached()
     own = params.to_dict() == model.rig.shape.params.to_dict() and np.abs(state["x"] - model.rig.x0).max() < 1e-3
