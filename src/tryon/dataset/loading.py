@@ -11,7 +11,7 @@ import numpy as np
 from tryon.dataset import drapes
 from tryon.dataset.drapes import DrapeDatasetSpec, Reference, build_references, drape_unit
 from tryon.dataset.generate import RunReport, open_dataset, run_generator
-from tryon.dataset.store import DatasetError, Manifest, ShardStore, software_version
+from tryon.dataset.store import DatasetError, Manifest, ShardStore, sample_rows, software_version
 from tryon.drape.dress import DressedGarment
 
 
@@ -41,12 +41,7 @@ class DrapeDataset:
         return len(self.arrays["unit"])
 
     def rows(self, split: str | None = None, ok_only: bool = True) -> np.ndarray:
-        keep = np.ones(len(self), bool)
-        if split is not None:
-            keep &= self.arrays["split"] == split
-        if ok_only:
-            keep &= self.arrays["ok"].astype(bool)
-        return np.nonzero(keep)[0]
+        return sample_rows(self.arrays, split, ok_only)
 
     def summary(self) -> dict:
         a = self.arrays

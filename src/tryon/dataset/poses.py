@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tryon.dataset.store import DatasetError, Manifest, ShardStore
+from tryon.dataset.store import DatasetError, Manifest, ShardStore, sample_rows
 from tryon.errors import TryonError
 
 KIND = "poses"
@@ -265,12 +265,7 @@ class PoseDataset:
     rest: RestDrape
 
     def rows(self, split: str | None = None, ok_only: bool = True) -> np.ndarray:
-        keep = np.ones(len(self.arrays["unit"]), bool)
-        if split is not None:
-            keep &= self.arrays["split"] == split
-        if ok_only:
-            keep &= self.arrays["ok"].astype(bool)
-        return np.nonzero(keep)[0]
+        return sample_rows(self.arrays, split, ok_only)
 
     def summary(self) -> dict:
         a = self.arrays

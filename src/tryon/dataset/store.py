@@ -88,6 +88,17 @@ class Manifest:
             raise DatasetError(f"{path} is not a dataset manifest ({exc})") from exc
 
 
+def sample_rows(arrays: dict[str, np.ndarray], split: str | None = None, ok_only: bool = True) -> np.ndarray:
+    """Indices of a loaded dataset's samples in `split` (all splits: None), the failed ones
+    left out unless `ok_only` is false."""
+    keep = np.ones(len(arrays["unit"]), bool)
+    if split is not None:
+        keep &= arrays["split"] == split
+    if ok_only:
+        keep &= arrays["ok"].astype(bool)
+    return np.nonzero(keep)[0]
+
+
 class ShardStore:
     """Reads and writes the samples of one dataset folder."""
 
