@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from tryon.dataset.poses import PoseDatasetSpec, load_pose_dataset, make_pose_dataset
+from tryon.errors import TryonError
+from tryon.kdsm.animate import _check_garment
 from tryon.kdsm.embed import find_parents
 from tryon.kdsm.evaluate import generation_table, sequence_targets
 from tryon.kdsm.rig import KdsmRig
@@ -102,26 +104,78 @@ def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
     assert json.loads((tmp_path / "b" / "kdsm.json").read_text())
 
 
-def test_animate_with_a_kdsm_model_on_another_body(poses, tmp_path):
+def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_path):
     import json
 
     from tryon.cli import main
+    from tryon.drape.animate import load_drape
     from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
 
     data, rows, rig, folder = poses
     train_kdsm(folder, tmp_path / "m", KdsmTrainConfig(method="kdsm-hybrid", epochs=2, batch=4, cell=0.025), progress=False)
+    # another body, and the pattern meshed at 4 cm where the model's dataset used 3 cm
     drape = tmp_path / "drape"
     assert main(["drape", "--height-cm", "170", "--weight-kg", "66", "--gender", "female", "--size", "M", "--edge-length",
-                 "0.03", "--out", str(drape), "--quiet"]) == 0
+                 "0.04", "--out", str(drape), "--quiet"]) == 0
     assert main(["animate", str(drape), "--motion", "arm-raise", "--duration", "0.5", "--method", "kdsm", "--model",
                  str(tmp_path / "m" / "model.npz"), "--quiet"]) == 0
     out = drape / "animation-arm-raise"
     rep = json.loads((out / "report.json").read_text())
     assert rep["transferred_to_another_body"] and rep["frames"] == 16 and rep["ms_per_frame"] > 0
     frames = np.load(out / "frames.npz")
-    assert frames["positions"].shape == (16, len(rig.x0), 3) and np.isfinite(frames["positions"]).all()
-    # a drape of another garment is refused by name
-    other = tmp_path / "other"
-    assert main(["drape", "--height-cm", "170", "--weight-kg", "66", "--gender", "female", "--size", "M", "--edge-length",
-                 "0.04", "--out", str(other), "--quiet"]) == 0
-    assert main(["animate", str(other), "--method", "kdsm", "--model", str(tmp_path / "m" / "model.npz"), "--quiet"]) == 2
+    n = len(load_drape(drape)["x"])
+    assert frames["positions"].shape == (16, n, 3) and n < len(rig.x0) and np.isfinite(frames["positions"]).all()
+    # the garment stays on the body: no more than a few vertices inside it in any frame
+    assert max(m["penetration_pct"] for m in json.loads((out / "metrics.json").read_text())) < 5.0
+
+
+def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):
+    """Flipping interior edges of the model's own mesh (what another machine's Delaunay can
+    do) changes nothing in the prediction: the network is read at material coordinates."""
+    from tryon.kdsm.model import KdsmModel
+    from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
+
+    data, rows, rig, folder = poses
+    train_kdsm(folder, tmp_path / "j", KdsmTrainConfig(method="jin-uvn", epochs=1, batch=4, cell=0.025), progress=False)
+    g = data.rest.garment
+    faces, corner_uv = _flip_interior_edges(g.faces, g.corner_uv, g.face_panel, g.seam_vertices, count=40)
+    assert (faces != g.faces).any(axis=1).sum() >= 40
+    pose = data.arrays["pose"][rows[0]][-1]
+    for path in (tmp_path / "j" / "model.npz", tmp_path / "j" / "best.npz"):
+        model = KdsmModel.load(path)
+        moved, how = model.on_drape(g.vertices, faces, corner_uv, g.face_panel, data.rest.shape())
+        assert how == "retriangulated" and np.array_equal(moved.rig.faces, faces)
+        assert np.abs(moved.predict(pose) - model.predict(pose)).max() < 1e-6
+    # a garment of another size is refused by name
+    from tryon.dataset.drapes import size_pattern
+    from tryon.garment.triangulate import triangulate_pattern
+
+    other = triangulate_pattern(size_pattern("tshirt", "female", "XL")[2], 0.03)
+    with pytest.raises(TryonError, match="pattern"):
+        model.atlas.on_garment(other.faces, other.corner_uv, other.panel_of_vertex[other.faces[:, 0]])
+    with pytest.raises(TryonError, match="tshirt M"):
+        _check_garment(KdsmModel.load(tmp_path / "j" / "model.npz"), {"request": {"garment": "tshirt", "size": "XL", "fabric": "gray-interlock"}}, "m.npz")
+
+
+def _flip_interior_edges(faces, corner_uv, face_panel, seam, count):
+    """Flip `count` edges shared by two faces of one panel, away from seams."""
+    faces, corner_uv = faces.copy(), corner_uv.copy()
+    seam = set(np.asarray(seam).tolist())
+    owner = {}
+    for f, tri in enumerate(faces):
+        for k in range(3):
+            owner[(tri[k], tri[(k + 1) % 3])] = (f, k)
+    used, flipped = set(), 0
+    for (a, b), (f, k) in list(owner.items()):
+        if flipped == count or (b, a) not in owner or f in used:
+            continue
+        h, j = owner[(b, a)]
+        c, d = faces[f, (k + 2) % 3], faces[h, (j + 2) % 3]
+        if h in used or face_panel[f] != face_panel[h] or {a, b, c, d} & seam:
+            continue
+        uv = {faces[f, i]: corner_uv[f, i].copy() for i in range(3)} | {faces[h, i]: corner_uv[h, i].copy() for i in range(3)}
+        faces[f], faces[h] = (a, d, c), (d, b, c)
+        corner_uv[f], corner_uv[h] = [uv[v] for v in (a, d, c)], [uv[v] for v in (d, b, c)]
+        used |= {f, h}
+        flipped += 1
+    return faces, corner_uv

@@ -156,9 +156,9 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     if args.method == "kdsm":
         from tryon.kdsm.animate import kdsm_animate
 
-        if not args.model:
-            raise TryonError("--method kdsm needs --model MODEL.npz: a model trained (tryon train kdsm) on this machine's "
-                             "pose dataset of the drape's garment (docs/KDSM.md)")
+        from tryon.kdsm.model import shipped_model_path
+
+        args.model = args.model or shipped_model_path("kdsm-hybrid")
         if args.resume or args.parallel == "time":
             raise TryonError("--resume and --parallel belong to the simulated animation; a KDSM animation takes seconds")
         rep = kdsm_animate(args.drape_dir, args.model, args.motion, out=args.out, duration=args.duration,
@@ -433,7 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
     a.add_argument("--method", choices=["simulate", "kdsm"], default="simulate",
                    help="simulate the garment, or predict it pose by pose with a trained KDSM model (--model)")
-    a.add_argument("--model", help="kdsm: a model file from tryon train kdsm")
+    a.add_argument("--model", help="kdsm: a model file from tryon train kdsm (default: the shipped hybrid, T-shirt M)")
     a.add_argument("--quiet", action="store_true")
     _parallel_args(a)
     _force_arg(a)

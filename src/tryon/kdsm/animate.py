@@ -1,21 +1,23 @@
-"""`tryon animate DRAPE --motion M --method kdsm --model MODEL`: the garment of a drape
+"""`tryon animate DRAPE --motion M --method kdsm [--model MODEL]`: the garment of a drape
 through a motion, predicted pose by pose by a trained network (tryon.kdsm) instead of
-simulated.
+simulated. Without --model, the hybrid model that ships with tryon (T-shirt M).
 
-The drape must be of the garment the model was trained on, on the same triangulation
-(the size's pattern at the dataset's edge length). On the model's own body the model's
-rig is used; on another body a rig is built around that body and its drape, and the
-network's prediction (d in material space, or the surface offsets) is applied there
-(the KDSM paper's transfer to other body shapes). The body follows the motion as the
-simulated `tryon animate` poses it (the blend from the A-pose, then the motion at its own
-frame rate). Outputs as the simulated animation's: frames.npz (same `positions` layout),
-preview.gif, last_frame.png, metrics.json (penetration per frame) and report.json, with
-the milliseconds per frame the prediction took (rendering excluded).
+The drape must be of the garment and size the model was trained on, on any triangulation
+of that pattern and any body: the network's images are read at the drape's material
+coordinates. On the model's own body its volume and skinning are used; on another body a
+rig is built around that body and its drape, and the network's prediction (d in material
+space, or the surface offsets) is applied there (the KDSM paper's transfer to other body
+shapes). The body follows the motion as the simulated `tryon animate` poses it (the blend
+from the A-pose, then the motion at its own frame rate). Outputs as the simulated
+animation's: frames.npz (same `positions` layout), preview.gif, last_frame.png,
+metrics.json (penetration per frame) and report.json, with the milliseconds per frame the
+prediction took (rendering excluded).
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,17 +43,12 @@ def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "w
     check_output_dir(out, force=force)
     state = load_drape(drape_dir)
     model = KdsmModel.load(model_path)
-    faces = np.asarray(state["faces"])
-    if faces.shape != model.rig.faces.shape or not np.array_equal(faces, model.rig.faces):
-        raise TryonError(f"the drape in {drape_dir} ({state['request']['garment']}, {len(state['x'])} vertices) is not on the "
-                         f"triangulation of the model {model_path} ({len(model.rig.x0)} vertices): drape the model's garment "
-                         "(its pose dataset's size and edge length, e.g. --size M --edge-length 0.015) on the machine the "
-                         "model's pose dataset was made on")
+    _check_garment(model, state, model_path)
     params = ShapeParams.from_dict(state["body_params"])
     shape = body_model().rest_shape(params).detached()
-    own = params.to_dict() == model.rig.shape.params.to_dict() and np.abs(state["x"] - model.rig.x0).max() < 1e-3
     t1 = time.perf_counter()
-    rig = model.rig if own else KdsmRig.build(state["x"], faces, shape, cell=model.rig.volume.cell)
+    model, how = model.on_drape(state["x"], state["faces"], state["corner_uv"], state["face_panel"], shape)
+    rig = model.rig
     rig_s = time.perf_counter() - t1
     rots, trans, times = motion_poses(shape, load_motion(motion, shape), named_pose(shape, "a"), fps=FPS)
     if duration is not None:
@@ -61,12 +58,12 @@ def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "w
     positions, bodies, ms = [], [], []
     for R, tr in tqdm(list(zip(rots, trans)), desc="kdsm frames", unit="frame", disable=not progress, leave=False):
         tic = time.perf_counter()
-        positions.append(model.predict(matrix_to_axis_angle(R), net, rig=rig, translation=tr))
+        positions.append(model.predict(matrix_to_axis_angle(R), net, translation=tr))
         ms.append(1000.0 * (time.perf_counter() - tic))
         bodies.append(rig.body(rig.transforms(matrix_to_axis_angle(R), tr)))
     report = _write(out, np.stack(positions), np.stack(bodies), times, rig, state, force)
     report.update({"method": f"kdsm ({model.method})", "model": str(model_path), "motion": str(motion),
-                   "transferred_to_another_body": not own, "rig_s": rig_s, "ms_per_frame": float(np.median(ms)),
+                   "transferred_to_another_body": how == "another body", "mesh": how, "rig_s": rig_s, "ms_per_frame": float(np.median(ms)),
                    "frames_per_second": 1000.0 / float(np.median(ms)), "wall_s": time.perf_counter() - t0})
     from tryon.io.atomic import atomic_write
     from tryon.io.json_safe import dumps_json
@@ -74,6 +71,20 @@ def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "w
     with atomic_write(out / "report.json") as fh:
         fh.write(dumps_json(report, indent=2))
     return report
+
+
+def _check_garment(model: KdsmModel, state: dict, model_path) -> None:
+    """The drape must be of the model's garment and size (any triangulation, any body)."""
+    spec = model.card.get("manifest", {}).get("spec", {})
+    request = state["request"]
+    want = (spec.get("garment"), spec.get("size"))
+    got = (request.get("garment"), request.get("size"))
+    if None not in want and got != want:
+        raise TryonError(f"the model {model_path} is of the {want[0]} {want[1]}; the drape is of the {got[0]} {got[1]}: "
+                         f"drape the {want[0]} in size {want[1]}, or train a model on a pose dataset of this garment")
+    if spec.get("fabric") and request.get("fabric") != spec["fabric"]:
+        warnings.warn(f"the model was trained on {spec['fabric']}; the drape is of {request.get('fabric')}: the "
+                      "animation moves the cloth as the model's fabric", stacklevel=3)
 
 
 def _write(out: Path, positions: np.ndarray, bodies: np.ndarray, times: np.ndarray, rig: KdsmRig, state: dict,

@@ -78,6 +78,31 @@ class KdsmModel:
         self._last_tet, self._last_rig = located[0], rig
         return rig.positions(self.method, value, G, located=located)
 
+    def on_drape(self, x: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, face_panel: np.ndarray,
+                 shape) -> tuple["KdsmModel", str]:
+        """This model for a drape of its garment (rest positions `x`, any triangulation of
+        the pattern) on the body `shape`: (model, how) where how is "own" (the model's rig
+        and mesh), "retriangulated" (its body; the images read at the drape's material
+        coordinates, the volume and skinning kept) or "another body" (a rig built around
+        that body and drape: the KDSM paper's transfer to other body shapes)."""
+        from dataclasses import replace
+
+        faces = np.asarray(faces)
+        x = np.asarray(x, np.float64)
+        same_mesh = faces.shape == self.rig.faces.shape and np.array_equal(faces, self.rig.faces)
+        same_body = shape.params.to_dict() == self.rig.shape.params.to_dict()
+        if same_mesh and same_body and np.abs(x - self.rig.x0).max() < 1e-3:
+            return self, "own"
+        atlas = self.atlas if same_mesh else self.atlas.on_garment(faces, corner_uv, face_panel)
+        if same_body:
+            r = self.rig
+            rig = KdsmRig(r.volume, r.skin, SurfaceBinding.bind(x, r.rest_body, r.shape.faces), x, faces, r.shape, r.rest_body)
+            how = "retriangulated"
+        else:
+            rig = KdsmRig.build(x, faces, shape, cell=self.rig.volume.cell)
+            how = "another body"
+        return replace(self, rig=rig, atlas=atlas), how
+
     def reset(self) -> None:
         """Forget the last prediction's parent tets (the next pose is not the last one's neighbour)."""
         self._last_tet = self._last_rig = None
@@ -90,6 +115,7 @@ class KdsmModel:
                   "skin_weight": r.skin.weight.astype(np.float32), "skin_rest": r.skin.rest_transforms,
                   "bind_face": r.binding.face, "bind_bary": r.binding.bary, "x0": r.x0, "faces": r.faces,
                   "rest_body": r.rest_body, "atlas_panel": self.atlas.panel, "atlas_coords": self.atlas.coords,
+                  **({} if self.atlas.frame is None else {"atlas_frame": self.atlas.frame}),
                   "bones": self.bones, "feature_mean": self.feature_mean, "feature_std": self.feature_std,
                   "target_mean": self.target_mean, "target_std": self.target_std}
         # the large weight tensors as float16 (inference reads them back as float32)
@@ -120,7 +146,8 @@ class KdsmModel:
         rig = KdsmRig(volume, VolumeSkin(d["skin_index"].astype(np.int64), weight, d["skin_rest"]),
                       SurfaceBinding(d["bind_face"], d["bind_bary"]), d["x0"], d["faces"], shape, d["rest_body"])
         weights = {k[2:]: d[k] for k in d.files if k.startswith("w/")}
-        return cls(meta["method"], rig, PanelAtlas(d["atlas_panel"], d["atlas_coords"], int(meta["panels"])), d["bones"],
+        return cls(meta["method"], rig, PanelAtlas(d["atlas_panel"], d["atlas_coords"], int(meta["panels"]),
+                                                d["atlas_frame"] if "atlas_frame" in d.files else None), d["bones"],
                    d["feature_mean"], d["feature_std"], d["target_mean"], d["target_std"], weights, meta["card"])
 
 

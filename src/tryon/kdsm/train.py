@@ -30,6 +30,7 @@ from tryon.kdsm.rig import METHODS, KdsmRig
 
 CHECKPOINT = "checkpoint.pt"
 SPLITS = ("train", "val", "test")
+SCHEDULES = ("constant", "cosine")
 
 
 @dataclass
@@ -40,6 +41,7 @@ class KdsmTrainConfig:
     lr: float = 1e-3
     seed: int = 0
     cell: float = 0.02
+    schedule: str = "cosine"    # the learning rate over the epochs: "constant" (Jin et al.) or cosine decay to 5 %
 
     def validate(self) -> None:
         if self.method not in METHODS or self.method == "skinning":
@@ -48,32 +50,47 @@ class KdsmTrainConfig:
             raise TryonError("epochs 1-10,000, batch 1-1,024, a learning rate in (0, 1) and a seed >= 0")
         if not 0.005 <= self.cell <= 0.1:
             raise TryonError(f"--cell {self.cell} m is outside 0.005-0.1 m")
+        if self.schedule not in SCHEDULES:
+            raise TryonError(f"--schedule {self.schedule!r}: one of {', '.join(SCHEDULES)}")
+
+    def learning_rate(self, epoch: int) -> float:
+        """The rate for (0-based) `epoch`: a function of the epoch alone, so a resumed run follows it exactly."""
+        if self.schedule == "constant":
+            return self.lr
+        return float(self.lr * (0.05 + 0.95 * 0.5 * (1.0 + np.cos(np.pi * epoch / self.epochs))))
 
 
 def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progress: bool = True) -> dict[str, np.ndarray]:
     """Every ok sequence's poses: per-bone axis-angle [N,J,3], targets [N,n,3], cloth
-    [N,n,3], split [N], sequence [N]; cached per dataset content and method."""
+    [N,n,3], split [N], sequence [N]. Targets are cached per sequence (one file each, in a
+    folder keyed by the dataset's settings, the rest drape, the method and the volume), so
+    a dataset that grew only computes its new sequences."""
     rows = data.rows()
-    key = hashlib.sha1(data.arrays["unit"][rows].tobytes() + json.dumps(data.manifest.spec, sort_keys=True).encode()
-                       + method.encode() + str(rig.volume.cell).encode()).hexdigest()[:16]
-    path = None if cache is None else cache / f"{method}-{key}.npz"
-    if path is not None and path.exists():
-        with np.load(path) as z:
-            return {k: z[k] for k in z.files}
+    key = hashlib.sha1(json.dumps(data.manifest.spec, sort_keys=True).encode() + rig.x0.tobytes() + method.encode()
+                       + str(rig.volume.cell).encode()).hexdigest()[:16]
+    folder = None if cache is None else cache / f"{method}-{key}"
     P, T, X, split, seq = [], [], [], [], []
     for r in tqdm(rows, desc=f"{method} targets", unit="sequence", disable=not progress, leave=False):
-        for x, pose in zip(data.arrays["x"][r].astype(np.float64), data.arrays["pose"][r]):
-            P.append(pose)
-            T.append(rig.target(method, x, rig.transforms(pose)).astype(np.float32))
-            X.append(x.astype(np.float32))
-            split.append(str(data.arrays["split"][r]))
-            seq.append(int(data.arrays["unit"][r]))
-    out = {"pose": np.stack(P), "target": np.stack(T), "x": np.stack(X), "split": np.asarray(split), "sequence": np.asarray(seq)}
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_write(path, "wb") as fh:
-            np.savez(fh, **out)
-    return out
+        unit = int(data.arrays["unit"][r])
+        poses, xs = data.arrays["pose"][r], data.arrays["x"][r]
+        path = None if folder is None else folder / f"{unit:07d}.npz"
+        if path is not None and path.exists():
+            with np.load(path) as z:
+                target = z["target"]
+        else:
+            target = np.stack([rig.target(method, x, rig.transforms(pose)) for x, pose in
+                               zip(xs.astype(np.float64), poses)]).astype(np.float32)
+            if path is not None:
+                folder.mkdir(parents=True, exist_ok=True)
+                with atomic_write(path, "wb") as fh:
+                    np.savez(fh, target=target)
+        P.append(poses)
+        T.append(target)
+        X.append(xs.astype(np.float32))
+        split += [str(data.arrays["split"][r])] * len(poses)
+        seq += [unit] * len(poses)
+    return {"pose": np.concatenate(P), "target": np.concatenate(T), "x": np.concatenate(X), "split": np.asarray(split),
+            "sequence": np.asarray(seq)}
 
 
 def moving_bones(poses: np.ndarray, tol: float = 1e-6) -> np.ndarray:
@@ -131,6 +148,8 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
             return None
         run += 1
         net.train()
+        for group in opt.param_groups:
+            group["lr"] = config.learning_rate(state["epoch"])
         order = train[np.random.default_rng([config.seed, state["epoch"]]).permutation(len(train))]
         total = 0.0
         bar = tqdm(range(0, len(order), config.batch), desc=f"epoch {state['epoch'] + 1}/{config.epochs}",
@@ -176,7 +195,8 @@ def card_markdown(card: dict) -> str:
              f"{spec['fabric']}, {spec['edge_length']} m edges, sequences of {spec['frames']} poses at {spec['fps']:g} fps "
              f"(seed {card['manifest']['seed']}, generator version {card['manifest']['generator_version']}).",
              f"- Split by sequence: {card['manifest']['split']['rule']}.",
-             f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']}, seed "
+             f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']} "
+             f"({card['config'].get('schedule', 'constant')}), seed "
              f"{card['config']['seed']}, volume cell {card['config']['cell']} m, {card['bones']} moving bones as input; "
              f"selected on {card['selected_on']}; {card['training_s'] / 60:.0f} min here.", "",
              "| split | sequences | frames | mean error (cm) | std over frames (cm) |", "|---|---:|---:|---:|---:|"]
