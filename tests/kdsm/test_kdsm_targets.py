@@ -127,6 +127,12 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     assert frames["positions"].shape == (16, n, 3) and n < len(rig.x0) and np.isfinite(frames["positions"]).all()
     # the garment stays on the body: no more than a few vertices inside it in any frame
     assert max(m["penetration_pct"] for m in json.loads((out / "metrics.json").read_text())) < 5.0
+    # the viewer plays it like a simulated animation
+    from tryon.viewer import write_viewer
+
+    scene = json.loads((write_viewer(drape, animation="arm-raise") / "scene.json").read_text())
+    assert scene["frames"] == 16 and scene["garment"]["vertices"] == n
+    assert any("kdsm" in line and "ms per frame" in line for line in scene["info"])
 
 
 def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):

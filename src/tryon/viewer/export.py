@@ -79,6 +79,8 @@ def _title_and_info(seq: dict, animation: str | None) -> tuple[str, list[str]]:
     info = [who]
     if animation:
         info.append(f"motion: {animation}")
+    if "ms_per_frame" in rep:
+        info.append(f"predicted by {rep.get('method', 'a network')}: {rep['ms_per_frame']:.1f} ms per frame")
     if "max_strain" in rep:
         info.append(f"max strain {100 * rep['max_strain']:.1f} %, penetration {rep.get('penetration_pct', rep.get('max_penetration_pct', 0.0)):.2f} %")
     return title, info
