@@ -75,6 +75,7 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
                 verr.append(1e6 * abs(enclosed_volume(pred, rig.faces, capped) - enclosed_volume(xf, rig.faces, capped)))
             err, verr = np.asarray(err), np.asarray(verr)
             per_frame[(model.method, split)] = err
+            records += _by_source(model.method, split, err, np.repeat(data.arrays["source"][rows], len(err) // len(rows)))
             records.append({"table": "learned", "method": model.method, "split": split, "frames": int(len(err)),
                             "mean_error_cm": float(err.mean()), "std_error_cm": float(err.std()),
                             "volume_error_cm3": float(verr.mean()), "volume_error_std_cm3": float(verr.std()),
@@ -97,6 +98,14 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
         _side_by_side(Path(json_path).with_name(Path(json_path).stem + "_frames.png"), data, int(test_rows[0]),
                       [skin_only] + loaded)
     return records
+
+
+def _by_source(method: str, split: str, err: np.ndarray, source: np.ndarray) -> list[dict]:
+    """The per-frame errors of one method and split, apart for each kind of sequence
+    (built-in motions, random key poses): the kinds differ by more than the methods."""
+    return [{"table": "learned-by-source", "method": method, "split": split, "source": str(s),
+             "frames": int((source == s).sum()), "mean_error_cm": float(err[source == s].mean()),
+             "std_error_cm": float(err[source == s].std())} for s in np.unique(source)]
 
 
 def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, motion: str | Path, work: Path,
