@@ -94,8 +94,18 @@ def test_volume_skinning_blends_the_bodys_weights(scene):
     np.put_along_axis(got, skin.index[near], skin.weight[near], 1)
     assert np.abs(got - expect).sum(1).max() < 0.05   # top-8 truncation only
     # raising the arms to a T keeps almost every tet the right way out
-    q = pose_quality(volume, skin.pose(volume.vertices, scene["G_t"]))
+    q = pose_quality(volume, skin.pose(volume.vertices, scene["G_t"]), skin, shape)
     assert q["inverted_pct"] < 0.5 and q["median_volume_ratio"] == pytest.approx(1.0, abs=0.02)
+    # arms out, their air stays clear of the torso's; arms straight down at the sides (45
+    # degrees further in than the volume's A-pose), it runs into it
+    from tryon.body.pose import arm_pose
+    from tryon.kdsm.skinning import bone_transforms_np, tet_regions
+
+    assert q["arm_tets"] > 1000 and q["arm_torso_overlap_pct"] < 0.5
+    down = pose_quality(volume, skin.pose(volume.vertices, bone_transforms_np(shape, arm_pose(shape, 0.0))), skin, shape)
+    assert down["arm_torso_overlap_pct"] > 5 * max(q["arm_torso_overlap_pct"], 0.2)
+    region = tet_regions(volume, skin, shape)
+    assert (region == 2).sum() > (region == 1).sum() > 0
 
 
 def test_method1_embedding_round_trips_to_round_off(scene):

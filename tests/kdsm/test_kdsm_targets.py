@@ -101,6 +101,8 @@ def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
     for r in learned:
         assert {"method", "split", "mean_error_cm", "std_error_cm", "volume_error_cm3", "inference_ms"} <= set(r)
         assert np.isfinite(r["mean_error_cm"]) and r["inference_ms"] > 0
+    quality = [r for r in recs if r["table"] == "volume-quality"]
+    assert len(quality) == 1 and quality[0]["poses"] > 0 and 0 <= quality[0]["arm_torso_overlap_pct_mean"] < 100
     by_source = [r for r in recs if r["table"] == "learned-by-source"]
     for r in learned:   # every frame of a split is in exactly one kind of sequence
         parts = [b for b in by_source if b["method"] == r["method"] and b["split"] == r["split"]]

@@ -58,6 +58,12 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
     if len(test_rows):
         for r in generation_table(rig, data.arrays["x"][test_rows], data.arrays["pose"][test_rows], progress=progress):
             records.append({"table": "generation", "split": "test", "sequences": int(len(test_rows)), **r})
+    judged = test_rows if len(test_rows) else data.rows()
+    if len(judged):
+        records.append(volume_quality_record(rig, data.arrays["pose"][judged][:, ::stride].reshape(
+            -1, *data.arrays["pose"].shape[2:]), "test" if len(test_rows) else "all"))
+        if progress:
+            print(f"kdsm bench: posed volume {records[-1]}", flush=True)
     capped = capped_faces(rig.faces, len(rig.x0))
     per_frame: dict[tuple[str, str], np.ndarray] = {}
     for model in [skin_only] + loaded:
@@ -98,6 +104,21 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
         _side_by_side(Path(json_path).with_name(Path(json_path).stem + "_frames.png"), data, int(test_rows[0]),
                       [skin_only] + loaded)
     return records
+
+
+def volume_quality_record(rig, poses: np.ndarray, split: str) -> dict:
+    """How the skinned volume holds up over poses: inverted tets and the arms' air run into
+    the torso's (`tryon.kdsm.skinning.pose_quality`), mean and worst pose."""
+    from tryon.kdsm.skinning import pose_quality
+
+    q = [pose_quality(rig.volume, rig.skin.pose(rig.volume.vertices, rig.transforms(p)), rig.skin, rig.shape) for p in poses]
+    inv = np.array([r["inverted_pct"] for r in q])
+    ovl = np.array([r["arm_torso_overlap_pct"] for r in q])
+    return {"table": "volume-quality", "split": split, "poses": int(len(q)), "tets": q[0]["tets"] if q else 0,
+            "inverted_pct_mean": float(inv.mean()), "inverted_pct_max": float(inv.max()),
+            "arm_torso_overlap_pct_mean": float(ovl.mean()), "arm_torso_overlap_pct_max": float(ovl.max()),
+            "poses_with_overlap_pct": float(100.0 * (ovl > 0).mean()),
+            "min_volume_ratio": float(min(r["min_volume_ratio"] for r in q))}
 
 
 def _by_source(method: str, split: str, err: np.ndarray, source: np.ndarray) -> list[dict]:
