@@ -192,3 +192,28 @@ def _flip_interior_edges(faces, corner_uv, face_panel, seam, count):
         used |= {f, h}
         flipped += 1
     return faces, corner_uv
+
+
+def test_mirrored_examples_are_the_mirror_images(poses):
+    from tryon.body.pose import axis_angle, bone_transforms, skin
+    from tryon.kdsm.mirror import REFLECT, MirrorMap, mirror_pose
+    from tryon.kdsm.train import examples
+
+    data, rows, rig, folder = poses
+    g, shape = data.rest.garment, data.rest.shape()
+    m = MirrorMap.build(g.vertices, g.faces, g.corner_uv, g.face_panel)
+    assert m.rest_error_m < 0.004                      # the rest drape mirrors onto itself
+    pose = data.arrays["pose"][rows[0]][-1].astype(float)
+    mirrored = mirror_pose(pose, shape.bone_labels)
+    assert np.abs(mirror_pose(mirrored, shape.bone_labels) - pose).max() < 1e-12
+    body = skin(shape.vertices, shape.weight_index, shape.weight, bone_transforms(shape, axis_angle(pose))).numpy()
+    body_m = skin(shape.vertices, shape.weight_index, shape.weight, bone_transforms(shape, axis_angle(mirrored))).numpy()
+    from scipy.spatial import cKDTree
+
+    assert cKDTree(body_m).query(body @ REFLECT.T)[0].max() < 1e-6   # the mirrored pose is the mirrored body
+    x = data.arrays["x"][rows[0]][-1].astype(float)
+    assert np.linalg.norm(m.cloth(m.cloth(x)) - x, axis=1).mean() < 0.002
+    plain, both = examples(data, rig, "jin-uvn"), examples(data, rig, "jin-uvn", mirror=True)
+    train = (plain["split"] == "train").sum()
+    assert len(both["split"]) == len(plain["split"]) + train and both["mirrored"].sum() == train
+    assert np.array_equal(both["target"][~both["mirrored"]], plain["target"])

@@ -23,7 +23,7 @@ def _cmd_train_kdsm(args: argparse.Namespace) -> int:
     from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
 
     config = KdsmTrainConfig(method=args.method, epochs=args.epochs, batch=args.batch, lr=args.lr, seed=args.seed,
-                             cell=args.cell, schedule=args.schedule)
+                             cell=args.cell, schedule=args.schedule, mirror=args.mirror)
     config.validate()
     model = train_kdsm(args.data, args.out, config, progress=not args.quiet, force=args.force)
     print(json.dumps({"model": f"{args.out}/model.npz", "method": args.method, "metrics": model.card["metrics"]}, indent=1))
@@ -59,6 +59,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     k.add_argument("--cell", type=float, default=0.02, help="the volume's lattice cell (m)")
     k.add_argument("--schedule", choices=["cosine", "constant"], default="cosine",
                    help="learning rate over the epochs: cosine decay to 5 %% of --lr, or constant (Jin et al.)")
+    k.add_argument("--mirror", action="store_true",
+                   help="add each training pose's left-right mirror image (the body and pattern are symmetric)")
     k.add_argument("--quiet", action="store_true")
     k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     k.set_defaults(func=_cmd_train_kdsm)

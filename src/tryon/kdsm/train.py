@@ -42,6 +42,7 @@ class KdsmTrainConfig:
     seed: int = 0
     cell: float = 0.02
     schedule: str = "cosine"    # the learning rate over the epochs: "constant" (Jin et al.) or cosine decay to 5 %
+    mirror: bool = False        # add each training pose's left-right mirror image (tryon.kdsm.mirror)
 
     def validate(self) -> None:
         if self.method not in METHODS or self.method == "skinning":
@@ -60,37 +61,56 @@ class KdsmTrainConfig:
         return float(self.lr * (0.05 + 0.95 * 0.5 * (1.0 + np.cos(np.pi * epoch / self.epochs))))
 
 
-def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progress: bool = True) -> dict[str, np.ndarray]:
+def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progress: bool = True,
+             mirror: bool = False) -> dict[str, np.ndarray]:
     """Every ok sequence's poses: per-bone axis-angle [N,J,3], targets [N,n,3], cloth
-    [N,n,3], split [N], sequence [N]. Targets are cached per sequence (one file each, in a
-    folder keyed by the dataset's settings, the rest drape, the method and the volume), so
-    a dataset that grew only computes its new sequences."""
+    [N,n,3], split [N], sequence [N], mirrored [N]; with `mirror`, each training sequence
+    also in its left-right mirror image. Targets are cached per sequence (one file each,
+    in a folder keyed by the dataset's settings, the rest drape, the method and the
+    volume), so a dataset that grew only computes its new sequences."""
     rows = data.rows()
     key = hashlib.sha1(json.dumps(data.manifest.spec, sort_keys=True).encode() + rig.x0.tobytes() + method.encode()
                        + str(rig.volume.cell).encode()).hexdigest()[:16]
     folder = None if cache is None else cache / f"{method}-{key}"
-    P, T, X, split, seq = [], [], [], [], []
+    mirror_map = None
+    if mirror:
+        from tryon.kdsm.mirror import MirrorMap
+
+        g = data.rest.garment
+        mirror_map = MirrorMap.build(g.vertices, g.faces, g.corner_uv, g.face_panel)
+    parts: dict[str, list] = {k: [] for k in ("pose", "target", "x", "split", "sequence", "mirrored")}
     for r in tqdm(rows, desc=f"{method} targets", unit="sequence", disable=not progress, leave=False):
-        unit = int(data.arrays["unit"][r])
-        poses, xs = data.arrays["pose"][r], data.arrays["x"][r]
-        path = None if folder is None else folder / f"{unit:07d}.npz"
-        if path is not None and path.exists():
-            with np.load(path) as z:
-                target = z["target"]
-        else:
-            target = np.stack([rig.target(method, x, rig.transforms(pose)) for x, pose in
-                               zip(xs.astype(np.float64), poses)]).astype(np.float32)
-            if path is not None:
-                folder.mkdir(parents=True, exist_ok=True)
-                with atomic_write(path, "wb") as fh:
-                    np.savez(fh, target=target)
-        P.append(poses)
-        T.append(target)
-        X.append(xs.astype(np.float32))
-        split += [str(data.arrays["split"][r])] * len(poses)
-        seq += [unit] * len(poses)
-    return {"pose": np.concatenate(P), "target": np.concatenate(T), "x": np.concatenate(X), "split": np.asarray(split),
-            "sequence": np.asarray(seq)}
+        unit, split = int(data.arrays["unit"][r]), str(data.arrays["split"][r])
+        poses, xs = data.arrays["pose"][r].astype(np.float64), data.arrays["x"][r].astype(np.float64)
+        versions = [(False, poses, xs)]
+        if mirror_map is not None and split == "train":
+            from tryon.kdsm.mirror import mirror_pose
+
+            versions.append((True, np.stack([mirror_pose(p, rig.shape.bone_labels) for p in poses]),
+                             np.stack([mirror_map.cloth(x) for x in xs])))
+        for mirrored, P, X in versions:
+            path = None if folder is None else folder / f"{unit:07d}{'m' if mirrored else ''}.npz"
+            parts["target"].append(_cached_targets(path, rig, method, X, P))
+            parts["pose"].append(P.astype(np.float32))
+            parts["x"].append(X.astype(np.float32))
+            parts["split"] += [split] * len(P)
+            parts["sequence"] += [unit] * len(P)
+            parts["mirrored"] += [mirrored] * len(P)
+    out = {k: np.concatenate(parts[k]) for k in ("pose", "target", "x")}
+    out.update({k: np.asarray(parts[k]) for k in ("split", "sequence", "mirrored")})
+    return out
+
+
+def _cached_targets(path: Path | None, rig: KdsmRig, method: str, xs: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    if path is not None and path.exists():
+        with np.load(path) as z:
+            return z["target"]
+    target = np.stack([rig.target(method, x, rig.transforms(p)) for x, p in zip(xs, poses)]).astype(np.float32)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(path, "wb") as fh:
+            np.savez(fh, target=target)
+    return target
 
 
 def moving_bones(poses: np.ndarray, tol: float = 1e-6) -> np.ndarray:
@@ -112,7 +132,7 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     data = load_pose_dataset(data_dir)
     g = data.rest.garment
     rig = KdsmRig.build(g.vertices, g.faces, data.rest.shape(), cell=config.cell)
-    ex = examples(data, rig, config.method, out / "cache", progress)
+    ex = examples(data, rig, config.method, out / "cache", progress, mirror=config.mirror)
     train = np.flatnonzero(ex["split"] == "train")
     val = np.flatnonzero(ex["split"] == "val")
     selected_on = "val" if len(val) else "train"
@@ -196,7 +216,8 @@ def card_markdown(card: dict) -> str:
              f"(seed {card['manifest']['seed']}, generator version {card['manifest']['generator_version']}).",
              f"- Split by sequence: {card['manifest']['split']['rule']}.",
              f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']} "
-             f"({card['config'].get('schedule', 'constant')}), seed "
+             f"({card['config'].get('schedule', 'constant')}), "
+             f"{'training poses and their mirror images, ' if card['config'].get('mirror') else ''}seed "
              f"{card['config']['seed']}, volume cell {card['config']['cell']} m, {card['bones']} moving bones as input; "
              f"selected on {card['selected_on']}; {card['training_s'] / 60:.0f} min here.", "",
              "| split | sequences | frames | mean error (cm) | std over frames (cm) |", "|---|---:|---:|---:|---:|"]
@@ -227,7 +248,7 @@ def model_card(data, data_dir: Path, model: KdsmModel, ex: dict, config: KdsmTra
                seconds: float) -> dict:
     metrics = {}
     for split in SPLITS:
-        rows = np.flatnonzero(ex["split"] == split)
+        rows = np.flatnonzero((ex["split"] == split) & ~ex["mirrored"])   # the simulated poses only
         if len(rows):
             e = frame_errors(model, ex, rows)
             metrics[split] = {"frames": int(len(rows)), "sequences": int(len(np.unique(ex["sequence"][rows]))),
