@@ -132,8 +132,9 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     frames = np.load(out / "frames.npz")
     n = len(load_drape(drape)["x"])
     assert frames["positions"].shape == (16, n, 3) and n < len(rig.x0) and np.isfinite(frames["positions"]).all()
-    # the garment stays on the body: no more than a few vertices inside it in any frame
-    assert max(m["penetration_pct"] for m in json.loads((out / "metrics.json").read_text())) < 5.0
+    # what the network put inside the body is moved out of it
+    assert rep["pushed_out"] and rep["pushed_out_vertices_pct_max"] >= 0
+    assert max(m["penetration_pct"] for m in json.loads((out / "metrics.json").read_text())) < 0.5
     # the viewer plays it like a simulated animation
     from tryon.viewer import write_viewer
 

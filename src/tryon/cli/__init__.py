@@ -162,13 +162,13 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         if args.resume or args.parallel == "time":
             raise TryonError("--resume and --parallel belong to the simulated animation; a KDSM animation takes seconds")
         rep = kdsm_animate(args.drape_dir, args.model, args.motion, out=args.out, duration=args.duration,
-                           progress=not args.quiet, force=args.force)
+                           progress=not args.quiet, force=args.force, push_out=not args.no_push_out)
         print(f"{rep['motion']}: {rep['frames']} frames by {rep['method']} at {rep['ms_per_frame']:.1f} ms per frame "
               f"({rep['frames_per_second']:.0f} per second); penetration up to {rep['max_penetration_pct']:.2f} % of "
               f"vertices; {rep['wall_s']:.1f} s")
         return 0
-    if args.model:
-        raise TryonError("--model belongs to --method kdsm")
+    if args.model or args.no_push_out:
+        raise TryonError("--model and --no-push-out belong to --method kdsm")
     rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume,
                   run=_time_parallel_runner(args), duration=args.duration, force=args.force)
     print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
@@ -434,6 +434,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--method", choices=["simulate", "kdsm"], default="simulate",
                    help="simulate the garment, or predict it pose by pose with a trained KDSM model (--model)")
     a.add_argument("--model", help="kdsm: a model file from tryon train kdsm (default: the shipped hybrid, T-shirt M)")
+    a.add_argument("--no-push-out", action="store_true",
+                   help="kdsm: keep the network's cloth where it puts it, even inside the body (default: moved out)")
     a.add_argument("--quiet", action="store_true")
     _parallel_args(a)
     _force_arg(a)
