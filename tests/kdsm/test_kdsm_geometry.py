@@ -99,7 +99,8 @@ def test_volume_skinning_blends_the_bodys_weights(scene):
     # arms out, their air stays clear of the torso's; arms straight down at the sides (45
     # degrees further in than the volume's A-pose), it runs into it
     from tryon.body.pose import arm_pose
-    from tryon.kdsm.skinning import bone_transforms_np, tet_regions
+    from tryon.kdsm.quality import tet_regions
+    from tryon.kdsm.skinning import bone_transforms_np
 
     assert q["arm_tets"] > 1000 and q["arm_torso_overlap_pct"] < 0.5
     down = pose_quality(volume, skin.pose(volume.vertices, bone_transforms_np(shape, arm_pose(shape, 0.0))), skin, shape)

@@ -108,8 +108,8 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
 
 def volume_quality_record(rig, poses: np.ndarray, split: str) -> dict:
     """How the skinned volume holds up over poses: inverted tets and the arms' air run into
-    the torso's (`tryon.kdsm.skinning.pose_quality`), mean and worst pose."""
-    from tryon.kdsm.skinning import pose_quality
+    the torso's (`tryon.kdsm.quality.pose_quality`), mean and worst pose."""
+    from tryon.kdsm.quality import pose_quality
 
     q = [pose_quality(rig.volume, rig.skin.pose(rig.volume.vertices, rig.transforms(p)), rig.skin, rig.shape) for p in poses]
     inv = np.array([r["inverted_pct"] for r in q])

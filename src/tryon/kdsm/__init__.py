@@ -7,7 +7,8 @@ material-space points plus a learned pose-dependent displacement d(theta).
 
 from tryon.kdsm.embed import Embedded, Parents, embed, find_parents, locate_rest, reconstruct, smooth_offsets
 from tryon.kdsm.offsets import SurfaceBinding
-from tryon.kdsm.skinning import VolumeSkin, pose_quality, skin_volume
+from tryon.kdsm.quality import pose_quality
+from tryon.kdsm.skinning import VolumeSkin, skin_volume
 from tryon.kdsm.volume import TetVolume, build_volume
 
 __all__ = ["Embedded", "Parents", "embed", "find_parents", "locate_rest", "reconstruct", "smooth_offsets",
