@@ -109,9 +109,11 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
 def volume_quality_record(rig, poses: np.ndarray, split: str) -> dict:
     """How the skinned volume holds up over poses: inverted tets and the arms' air run into
     the torso's (`tryon.kdsm.quality.pose_quality`), mean and worst pose."""
-    from tryon.kdsm.quality import pose_quality
+    from tryon.kdsm.quality import pose_quality, tet_regions
 
-    q = [pose_quality(rig.volume, rig.skin.pose(rig.volume.vertices, rig.transforms(p)), rig.skin, rig.shape) for p in poses]
+    region = tet_regions(rig.volume, rig.skin, rig.shape)
+    q = [pose_quality(rig.volume, rig.skin.pose(rig.volume.vertices, rig.transforms(p)), rig.skin, rig.shape, region)
+         for p in poses]
     inv = np.array([r["inverted_pct"] for r in q])
     ovl = np.array([r["arm_torso_overlap_pct"] for r in q])
     return {"table": "volume-quality", "split": split, "poses": int(len(q)), "tets": q[0]["tets"] if q else 0,

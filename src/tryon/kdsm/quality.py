@@ -10,7 +10,8 @@ from tryon.kdsm.skinning import VolumeSkin
 from tryon.kdsm.volume import TetVolume, tet_volumes
 
 
-def pose_quality(volume: TetVolume, posed: np.ndarray, skin: VolumeSkin | None = None, shape=None) -> dict:
+def pose_quality(volume: TetVolume, posed: np.ndarray, skin: VolumeSkin | None = None, shape=None,
+                 region: np.ndarray | None = None) -> dict:
     """How the posed volume holds up: inverted tets (count and share) and the smallest
     volume ratio to the rest pose; with `skin` and `shape`, also how much of the arms' air
     has moved into the torso's (`arm_torso_overlap_pct`: arm tets whose centre lies in a
@@ -21,7 +22,7 @@ def pose_quality(volume: TetVolume, posed: np.ndarray, skin: VolumeSkin | None =
     out = {"tets": int(len(rest)), "inverted": int((now <= 0).sum()), "inverted_pct": float(100.0 * (now <= 0).mean()),
            "min_volume_ratio": float(ratio.min()), "median_volume_ratio": float(np.median(ratio))}
     if skin is not None and shape is not None:
-        out.update(arm_torso_overlap(volume, posed, skin, shape))
+        out.update(arm_torso_overlap(volume, posed, skin, shape, region))
     return out
 
 
@@ -48,10 +49,11 @@ def tet_regions(volume: TetVolume, skin: VolumeSkin, shape) -> np.ndarray:
     return np.where(share_arm > 0.5, 1, np.where(share_torso > 0.5, 2, 0))
 
 
-def arm_torso_overlap(volume: TetVolume, posed: np.ndarray, skin: VolumeSkin, shape) -> dict:
+def arm_torso_overlap(volume: TetVolume, posed: np.ndarray, skin: VolumeSkin, shape,
+                      region: np.ndarray | None = None) -> dict:
     """Arm tets whose centre lies inside a torso tet in the posed volume (they overlap
     there: a cloth vertex in that air has parents of both)."""
-    region = tet_regions(volume, skin, shape)
+    region = tet_regions(volume, skin, shape) if region is None else region   # pose-independent: pass it over many poses
     arm, torso = np.flatnonzero(region == 1), np.flatnonzero(region == 2)
     if not len(arm) or not len(torso):
         return {"arm_tets": int(len(arm)), "arm_torso_overlap": 0, "arm_torso_overlap_pct": 0.0}
