@@ -3,7 +3,8 @@
 import numpy as np
 import torch
 
-from tryon.learn.features import SkinPrior, vertex_normals
+from tryon.learn.features import SkinPrior
+from tryon.sim.collision.geometry import area_vertex_normals
 from tryon.learn.losses import closest_split, deformation_gradients, uniform_laplacian
 from tryon.learn.network import GraphConv
 
@@ -48,5 +49,5 @@ def test_skin_prior_follows_the_skin():
     assert np.allclose(prior.carry(verts), x)
     moved = verts + np.array([0.0, 0.0, 0.3])
     assert np.allclose(prior.carry(moved), x + [0, 0, 0.3])
-    n = vertex_normals(verts, faces)
+    n = area_vertex_normals(verts, faces)
     assert np.allclose(np.abs(n[:, 2]), 1.0)

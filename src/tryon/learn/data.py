@@ -17,7 +17,8 @@ from tqdm import tqdm
 from tryon.body.anny_model import ShapeParams, body_model
 from tryon.dataset.drapes import shape_params
 from tryon.dataset.loading import DrapeDataset
-from tryon.learn.features import SkinPrior, a_posed_body, body_region, vertex_normals
+from tryon.learn.features import SkinPrior, a_posed_body, body_region
+from tryon.sim.collision.geometry import area_vertex_normals
 from tryon.learn.topology import build_hierarchy
 
 CANDIDATES = 8
@@ -89,7 +90,7 @@ def training_set(data: DrapeDataset, priors: dict, region: np.ndarray, cache: Pa
     for r in tqdm(rows, desc="preparing samples", unit="sample", disable=not progress):
         gender = GENDERS[int(a["gender"][r])]
         body = a_posed_body(shape_params(a["shape_params"][r])).vertices
-        normals = vertex_normals(body, faces)[region]
+        normals = area_vertex_normals(body, faces)[region]
         truth = a["x"][r].astype(np.float64)
         _, cand = cKDTree(body[region]).query(truth, k=CANDIDATES)
         cols["body"].append(body[region].astype(np.float32))

@@ -26,14 +26,6 @@ def a_posed_body(params: ShapeParams) -> BodyPose:
     return posed_body(shape, "a", drafting_measurements(shape)["crotch_height"])
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    n = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-
-
 def body_region(references: list[tuple[np.ndarray, np.ndarray]], distance: float = REGION_DISTANCE) -> np.ndarray:
     """Sorted body vertex ids within `distance` of any (garment vertices, body vertices) reference."""
     from scipy.spatial import cKDTree

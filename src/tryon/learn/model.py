@@ -19,7 +19,7 @@ from tryon.drape.dress import DressedGarment
 from tryon.errors import TryonError
 from tryon.garment.pattern import Pattern
 from tryon.io.atomic import atomic_write
-from tryon.learn.features import SkinPrior, a_posed_body, vertex_normals
+from tryon.learn.features import SkinPrior, a_posed_body
 from tryon.learn.network import DrapeNet, NetConfig
 from tryon.learn.topology import GarmentHierarchy
 
@@ -191,4 +191,4 @@ def timestamp() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
-__all__ = ["DrapeModel", "ModelError", "load_shipped", "shipped_model_path", "vertex_normals"]
+__all__ = ["DrapeModel", "ModelError", "load_shipped", "shipped_model_path"]

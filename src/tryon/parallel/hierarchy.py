@@ -32,10 +32,10 @@ import torch
 from scipy.spatial import cKDTree
 
 from tryon.errors import SceneError
-from tryon.parallel.proxy import vertex_normals
 from tryon.sim.mesh import ClothMesh
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
 from tryon.sim.loop import run
+from tryon.sim.collision.geometry import area_vertex_normals
 from tryon.sim.model import ClothModel, ClothState, PinGroup, SoftHandle
 from tryon.sim.obstacles import Obstacle
 from tryon.sim.origin import GridOrigin, PatternMesh, PatternOrigin
@@ -191,7 +191,7 @@ def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
 def vertex_frames(X: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """[N, 3, 3] orthonormal frames (columns: tangent, bitangent, normal) at mesh vertices:
     the area-weighted normal and the direction to a fixed neighbour projected off it."""
-    n = vertex_normals(X, faces)
+    n = area_vertex_normals(X, faces)
     neighbour = np.arange(len(X))
     for k in range(3):
         neighbour[faces[:, k]] = faces[:, (k + 1) % 3]

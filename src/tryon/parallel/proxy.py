@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 
 from tryon.errors import SceneError
 from tryon.sim.collision import nearest_surface_points
+from tryon.sim.collision.geometry import area_vertex_normals
 from tryon.sim.obstacles import Motion, Obstacle
 
 MIN_FACES = 2000  # obstacles with fewer triangles are kept as they are
@@ -50,16 +51,6 @@ def cluster_decimate(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tu
     remap = np.full(m, -1, np.int64)
     remap[used] = np.arange(len(used))
     return C[used].tocsr(), remap[f]
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals [m, 3]."""
-    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    n = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(norm > 0, norm, 1.0)
 
 
 def _frames(ob: Obstacle) -> tuple[np.ndarray, np.ndarray | None]:
@@ -102,7 +93,7 @@ def proxy_obstacle(ob: Obstacle, cell: float, near: np.ndarray | None = None, re
             raise SceneError(f"obstacle {ob.name}: no part of it lies within {reach} m of the cloth")
     C, faces = cluster_decimate(frames[0], faces_in, cell)
     base = np.stack([C @ f for f in frames])
-    normals = np.stack([vertex_normals(b, faces) for b in base])
+    normals = np.stack([area_vertex_normals(b, faces) for b in base])
     sample = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), 12)).round().astype(int))
     offset = 0.0
     for _ in range(rounds):

@@ -39,6 +39,16 @@ def vertex_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return _unit(out)
 
 
+def area_vertex_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals [N,3] (zero where no face touches a vertex):
+    cheaper than `vertex_normals`, and what the learned models were trained with."""
+    fn = np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
+    n = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    return _unit(n)
+
+
 def face_edge_ids(faces: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """For every face corner k, the id [F,3] of the edge (v_k, v_{k+1}) in `edges`
     (-1 when the edge is not listed)."""
