@@ -14,6 +14,7 @@ from tryon.body.measure import drafting_measurements
 from tryon.body.pose import BodyPose, posed_body
 from tryon.drape import DrapeRequest, drape
 from tryon.drape import pipeline
+from tryon.dataset.drapes import size_pattern
 from tryon.drape.fit_metrics import penetration
 from tryon.drape.outputs import write_outputs
 from tryon.errors import SimulationError
@@ -86,6 +87,19 @@ def test_trousers_start_closed_and_uncrossed_and_dress_side_seams_start_closed(f
             pairs.append(np.stack([va, vb[::-1] if seam.reverse else vb], 1))
     st = np.concatenate(pairs)
     assert len(st) > 10 and np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max() < 0.005
+
+
+def test_the_largest_womens_trousers_ease_the_back_inseam_and_start_closed():
+    fit, m, p = size_pattern("trousers", "female", "XXL")
+    front, back = p.panel("front_L").edge("inseam").length(), p.panel("back_L").edge("inseam").length()
+    assert 0.02 < back / front - 1.0 < 0.05  # the back's longer crotch extension, eased in
+    body = posed_body(fit.shape, "a", m["crotch_height"])
+    mesh = triangulate_pattern(p, COARSE)
+    x = place_pattern(mesh, body)
+    assert np.linalg.norm(x[mesh.stitches[:, 0]] - x[mesh.stitches[:, 1]], axis=1).max() < SEAMS_CLOSED
+    pos, faces, _, _ = merge_stitched(mesh, x)
+    assert col.count_intersections(pos, faces, _edges(faces), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+                                   np.zeros((0, 2), np.int64))[0] == 0
 
 
 @pytest.mark.parametrize("gender,size", [("female", "L"), ("male", "L")])

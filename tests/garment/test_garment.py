@@ -108,6 +108,18 @@ def test_dressing_sews_a_closed_tshirt_outside_the_body(model_body):
     assert abs(g.vertices[:, 0].mean()) < 0.03
 
 
+def test_a_seam_eases_in_no_more_than_it_allows(tmp_path):
+    def pattern(ease):
+        a = Panel("a", [Edge("s", [[0, 0], [1, 0]]), Edge("t", [[1, 0], [1, 1]]), Edge("u", [[1, 1], [0, 0]])])
+        b = Panel("b", [Edge("s", [[0, 0], [1.04, 0]]), Edge("t", [[1.04, 0], [1.04, 1]]), Edge("u", [[1.04, 1], [0, 0]])])
+        return Pattern("p", [a, b], [Seam(("a", "s"), ("b", "s"), ease=ease)])
+
+    with pytest.raises(PatternError, match="different lengths"):
+        pattern(0.03)  # 4 % longer: over the default
+    p = pattern(0.05)
+    assert Pattern.load(p.save(tmp_path / "p.json")).seams[0].ease == 0.05
+
+
 def test_bad_patterns_are_refused():
     sq = [Edge("a", [[0, 0], [1, 0]]), Edge("b", [[1, 0], [1, 1]]), Edge("c", [[1, 1], [0, 0]])]
     p = Panel("p", sq)

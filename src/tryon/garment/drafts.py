@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tryon.errors import TryonError
-from tryon.garment.pattern import Edge, Panel, Pattern, Seam
+from tryon.garment.pattern import SEAM_EASE, Edge, Panel, Pattern, Seam
 
 GARMENTS = ("tshirt", "longsleeve", "skirt", "trousers", "dress")
 
@@ -280,6 +280,10 @@ TROUSER_PANEL_OFFSET = 0.01  # m: back panels this much wider per side than a qu
 # "Tight pants") and a hem of about 0.43 of it (16-17 in for a 38-40 in seat; 16 in is the
 # narrow end of the usual 16-20 in); both at least enough to pass over the thigh's
 # lower part and the foot.
+# The back's longer crotch extension makes its inseam (crotch point to knee) longer than the
+# front's: 1-2 % in regular sizes, 3-4 % in the largest (a big seat over a short leg). It is
+# eased into the front between crotch and knee, as trousers are sewn.
+TROUSER_INSEAM_EASE = 0.05
 TROUSER_KNEE_PER_SEAT = 0.47
 TROUSER_HEM_PER_SEAT = 0.43
 
@@ -337,7 +341,8 @@ def trouser_leg(name: str, m: dict, ease: Ease, front: bool, limb: str) -> Panel
 
 def draft_trousers(m: dict, ease: Ease) -> Pattern:
     panels = [trouser_leg(f"{s}_{l}", m, ease, s == "front", l) for s in ("front", "back") for l in ("L", "R")]
-    seams = [Seam((f"front_{l}", e), (f"back_{l}", e), reverse=True)
+    seams = [Seam((f"front_{l}", e), (f"back_{l}", e), reverse=True,
+                  ease=TROUSER_INSEAM_EASE if e == "inseam" else SEAM_EASE)
              for l in ("L", "R") for e in ("outseam_shin", "outseam", "outseam_hip", "inseam", "inseam_shin")]
     seams += [
         Seam(("front_L", "crotch"), ("front_R", "crotch"), reverse=True),

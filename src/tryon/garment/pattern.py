@@ -3,7 +3,8 @@
 A `Panel` is a closed loop of named `Edge`s, counter-clockwise seen from the outside of
 the garment, each a straight line or a cubic Bézier curve. A `Seam` joins one edge of a
 panel to one edge of another (or the same) panel; `reverse` says that the start of edge
-`a` meets the end of edge `b`. The grain line is the fabric's warp (first material axis,
+`a` meets the end of edge `b`; `ease` is how much longer one edge may be than the other
+(sewing eases the difference in). The grain line is the fabric's warp (first material axis,
 u) in panel coordinates. `placement` tells the dressing step where the panel goes on the
 body (`part`: torso / arm / leg / legs, `side`: front / back, `limb`: L / R).
 
@@ -20,6 +21,9 @@ import numpy as np
 
 from tryon.errors import InputFileError, TryonError
 from tryon.io.atomic import atomic_write
+
+
+SEAM_EASE = 0.03  # a seam's edges may differ by 3 % (+1 mm) unless the draft says otherwise
 
 
 class PatternError(TryonError):
@@ -129,9 +133,13 @@ class Seam:
     a: tuple[str, str]  # (panel, edge)
     b: tuple[str, str]
     reverse: bool = False
+    ease: float = SEAM_EASE  # the longer edge may exceed the shorter by this fraction (+1 mm): sewing takes it up
 
     def to_dict(self) -> dict:
-        return {"a": list(self.a), "b": list(self.b), "reverse": self.reverse}
+        d = {"a": list(self.a), "b": list(self.b), "reverse": self.reverse}
+        if self.ease != SEAM_EASE:
+            d["ease"] = self.ease
+        return d
 
 
 @dataclass
@@ -155,7 +163,7 @@ class Pattern:
                     raise PatternError(f"pattern {self.name!r}: edge {side} is sewn twice")
                 used.add(side)
             la, lb = self.seam_edges(s)[0].length(), self.seam_edges(s)[1].length()
-            if abs(la - lb) > 0.03 * max(la, lb) + 1e-3:
+            if abs(la - lb) > s.ease * max(la, lb) + 1e-3:
                 raise PatternError(
                     f"pattern {self.name!r}: seam {s.a} - {s.b} joins edges of different lengths "
                     f"({la * 100:.1f} cm vs {lb * 100:.1f} cm)"
@@ -186,7 +194,8 @@ class Pattern:
                       tuple(p.get("grain", (0.0, 1.0))), dict(p.get("placement", {})))
                 for p in d["panels"]
             ]
-            seams = [Seam(tuple(s["a"]), tuple(s["b"]), bool(s.get("reverse", False))) for s in d["seams"]]
+            seams = [Seam(tuple(s["a"]), tuple(s["b"]), bool(s.get("reverse", False)), float(s.get("ease", SEAM_EASE)))
+                     for s in d["seams"]]
             return cls(d["name"], panels, seams, dict(d.get("meta", {})))
         except (KeyError, TypeError, ValueError) as exc:
             raise PatternError(f"{source}: not a tryon pattern ({exc!r}); expected name, panels[edges], seams") from exc
