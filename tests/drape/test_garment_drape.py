@@ -285,3 +285,25 @@ def test_the_morph_lasts_as_long_as_the_body_change_needs():
     assert pipeline.morph_duration(start, far) == pytest.approx(0.09 / pipeline.MORPH_SPEED)
     assert pipeline.morph_duration(start, start + 5.0) == pipeline.MAX_MORPH_TIME
     assert pipeline.morph_duration(start, far, requested=0.3) == 0.3
+
+
+def test_a_top_that_sews_through_itself_is_dressed_again_with_the_arms_further_out(monkeypatch, size_m_man):
+    shape, m = size_m_man
+    calls = []
+
+    class Dressed:
+        def __init__(self, crossings):
+            self.stats = {"self_intersections": crossings}
+
+    def fake_dress(pattern, body, fabric, edge_length, progress=True):
+        hand = body.heads[[k for k in body.heads if "wrist" in k.lower() and k.endswith("L")][0]]
+        shoulder = body.heads[[k for k in body.heads if "upperarm" in k.lower() and k.endswith("L")][0]]
+        d = hand - shoulder
+        calls.append(np.degrees(np.arctan2(abs(d[0]), -d[2])))
+        return Dressed(38 if len(calls) == 1 else 0)
+
+    monkeypatch.setattr(pipeline, "dress_cached", fake_dress)
+    start, garment = pipeline.dress_on_fit_model(draft("tshirt", m, size="M"), shape, m["crotch_height"], None, COARSE)
+    assert len(calls) == 2 and garment.stats["self_intersections"] == 0
+    assert abs(calls[0] - 45.0) < 2.0 and abs(calls[1] - pipeline.DRESS_ARM_ANGLES[1]) < 2.0
+    assert garment.stats["dress_arm_angle_deg"] == pipeline.DRESS_ARM_ANGLES[1]
