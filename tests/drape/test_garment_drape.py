@@ -17,7 +17,7 @@ from tryon.drape import pipeline
 from tryon.dataset.drapes import size_pattern
 from tryon.drape.fit_metrics import penetration
 from tryon.drape.outputs import write_outputs
-from tryon.errors import SimulationError
+from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import Ease, draft, trouser_dims
 from tryon.drape.dress import SEAMS_CLOSED, DressedGarment, dress_pattern, place_pattern
@@ -307,3 +307,15 @@ def test_a_top_that_sews_through_itself_is_dressed_again_with_the_arms_further_o
     assert len(calls) == 2 and garment.stats["self_intersections"] == 0
     assert abs(calls[0] - 45.0) < 2.0 and abs(calls[1] - pipeline.DRESS_ARM_ANGLES[1]) < 2.0
     assert garment.stats["dress_arm_angle_deg"] == pipeline.DRESS_ARM_ANGLES[1]
+
+
+def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
+    req = DrapeRequest(Measurements(height_cm=175, weight_kg=137, gender="female"), garment="tshirt", size="XXL")
+    with pytest.raises(TryonError, match=r"size XXL is too small.*bust / chest.*leave out --size"):
+        drape(req, progress=False)
+    # the drape matrix drapes such a body made to measure and records why
+    from tryon.bench.drape_matrix import MADE_TO_MEASURE, nearest_size
+
+    size, why = nearest_size("trousers", {"chest_cm": 129, "waist_cm": 130, "hip_cm": 137}, "male")
+    assert size == MADE_TO_MEASURE and "waist" in why
+    assert nearest_size("tshirt", {"chest_cm": 120, "waist_cm": 108, "hip_cm": 127}, "female") == ("XXL", None)

@@ -6,8 +6,9 @@ trousers by hip, from the body's own fitted girths), in a woven and a knit fabri
 twelve bodies: both genders, BMI 17-45, heights 150-200 cm. Every cell is a real
 `tryon drape` run in its own process (renders, fit maps and GLB in the cell's folder);
 a cell that fails or exceeds its time limit is recorded with the reason. Finished cells
-are kept, so a stopped matrix resumes where it stopped. `--quick`: two bodies, one fabric,
-3 cm edges.
+are kept, so a stopped matrix resumes where it stopped. A body beyond the largest size
+(`tryon drape` refuses a size far too small) gets the garment made to measure, with the
+reason recorded. `--quick`: two bodies, one fabric, 3 cm edges.
 
 Pass (the issue's bar): every cell settles, with 0 % penetration, no explosion, in under
 `TARGET_S` seconds including body fit and sewing.
@@ -56,12 +57,20 @@ BODIES = (
 QUICK_BODIES = (Body("female", 165, 22), Body("male", 180, 25))
 
 
-def nearest_size(garment: str, girths: dict, gender: str) -> str:
-    """The standard size whose chest (tops) or hip (bottoms) is nearest the body's."""
+MADE_TO_MEASURE = "MTM"
+
+
+def nearest_size(garment: str, girths: dict, gender: str) -> tuple[str, str | None]:
+    """The standard size whose chest (tops) or hip (bottoms) is nearest the body's, or
+    made to measure (`MADE_TO_MEASURE`, drafted on the body) when even that size is too
+    small for it (`tryon drape` refuses it); the second item says why."""
+    from tryon.garment.drafts import size_too_small
     from tryon.garment.sizes import SIZES, size_measurements
 
     key = "chest_cm" if garment in TOPS else "hip_cm"
-    return min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
+    size = min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
+    why = size_too_small(garment, size, size_measurements(size, gender), girths)
+    return (size, None) if why is None else (MADE_TO_MEASURE, why)
 
 
 def body_girths(body: Body) -> dict:
@@ -79,8 +88,10 @@ def cells(quick: bool) -> list[tuple[Body, str, str]]:
 
 def _drape_cell(body: Body, garment: str, size: str, fabric: str, edge: float, out: Path, timeout_s: float) -> dict:
     cmd = [sys.executable, "-m", "tryon.cli", "drape", "--height-cm", str(body.height_cm), "--weight-kg",
-           str(body.weight_kg), "--gender", body.gender, "--garment", garment, "--size", size, "--fabric", fabric,
+           str(body.weight_kg), "--gender", body.gender, "--garment", garment, "--fabric", fabric,
            "--edge-length", str(edge), "--out", str(out), "--quiet"]
+    if size != MADE_TO_MEASURE:
+        cmd += ["--size", size]
     tic = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
@@ -94,7 +105,8 @@ def _drape_cell(body: Body, garment: str, size: str, fabric: str, edge: float, o
             "final_speed": rep.get("final_max_speed"), "max_speed": rep.get("max_speed"), "steps": rep.get("steps"),
             "retries": rep.get("retried_steps"), "substeps": rep.get("substeps"),
             "penetration_pct": rep["penetration_pct"], "max_strain": rep["max_strain"],
-            "recovered": rep.get("recoveries", 0)}
+            "recovered": rep.get("recoveries", 0), "dress_cached": bool(rep.get("dressing", {}).get("cached")),
+            "dress_s": rep.get("timings", {}).get("dress_s")}
 
 
 def passed(rec: dict) -> bool:
@@ -116,7 +128,7 @@ def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: fl
     for body, garment, fabric in cells(quick):
         if body.key not in girths:
             girths[body.key] = body_girths(body)
-        size = nearest_size(garment, girths[body.key], body.gender)
+        size, why = nearest_size(garment, girths[body.key], body.gender)
         name = f"{garment}-{size}-{fabric}-{body.key}"
         done = cell_root / f"{name}.json"
         if done.exists():
@@ -126,6 +138,8 @@ def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: fl
             rec = {"garment": garment, "size": size, "fabric": fabric, "gender": body.gender,
                    "height_cm": body.height_cm, "weight_kg": body.weight_kg, "bmi": body.bmi, "edge_length_m": edge,
                    "cell": name, **girths[body.key], **res}
+            if why:
+                rec["size_note"] = f"made to measure: {why}"
             rec["passed"] = passed(rec)
             with atomic_write(done) as fh:
                 fh.write(dumps_json(rec, indent=2))

@@ -40,7 +40,7 @@ from tryon.body.motion import morph_keyframes
 from tryon.body.pose import POSES, BodyPose, arm_pose, posed_body
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
-from tryon.garment.drafts import GARMENTS, draft
+from tryon.garment.drafts import GARMENTS, draft, size_too_small
 from tryon.drape.dress import DressedGarment, cloth_on_body, dress_cached
 from tryon.garment.prints import PRINT_WIDTH, GraphicPrint
 from tryon.garment.sizes import SIZES, size_measurements
@@ -378,6 +378,19 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     return state.x.numpy(), out_frames, out_times, stats, solver
 
 
+def check_size_fits(request: DrapeRequest, person: BodyFit) -> None:
+    """Refuse a standard size far too small for the person (`size_too_small`)."""
+    if request.size is None or request.garment_obj is not None:
+        return
+    size = request.size.upper()
+    why = size_too_small(request.garment, size, size_measurements(size, request.body.gender), person.achieved)
+    if why is not None:
+        bigger = [s for s in SIZES[SIZES.index(size) + 1:]
+                  if size_too_small(request.garment, s, size_measurements(s, request.body.gender), person.achieved) is None]
+        hint = f"try size {bigger[0]}" if bigger else "no standard size is large enough: leave out --size to draft it to measure"
+        raise TryonError(f"{why}; {hint}")
+
+
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
                        progress: bool = True) -> tuple[BodyPose, DressedGarment]:
     """The fit model's pose and the garment dressed on it: in the A-pose, or with the arms
@@ -401,6 +414,7 @@ def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
     t0 = time.perf_counter()
     person = fit_body(request.body)
     timings["fit_body_s"] = time.perf_counter() - t0
+    check_size_fits(request, person)
     fm_meas = fit_model_measurements(request)
     t1 = time.perf_counter()
     fit_model = fit_body(fm_meas) if fm_meas is not None else None

@@ -38,6 +38,37 @@ class Ease:
     waistband: float = 0.01  # trousers: a waistband fits close, so that it holds them up
 
 
+# A body may fill a garment up to this much beyond its finished girth (the fabric gives);
+# beyond it the size is too small to put on (a BMI-45 woman's 150 cm bust in a women's XXL
+# T-shirt, 135 cm with ease, draped only by stretching the cloth 35 %).
+WEAR_STRETCH = 0.05
+# The girths each garment must go around, and the ease that makes its finished girth.
+FITTED_GIRTHS = {"tshirt": ("chest",), "longsleeve": ("chest",), "dress": ("chest", "waist", "hip"),
+                 "skirt": ("waist", "hip"), "trousers": ("waist", "hip")}
+
+
+def finished_girth(garment: str, girth: str, size_cm: float, ease: Ease | None = None) -> float:
+    """A garment's girth (cm) at `girth` ('chest', 'waist', 'hip') for a size's body girth."""
+    ease = ease or Ease()
+    extra = {"chest": ease.chest, "waist": ease.waistband if garment == "trousers" else ease.waist, "hip": ease.hip}
+    return size_cm + 100.0 * extra[girth]
+
+
+def size_too_small(garment: str, size: str, size_girths: dict, body_girths: dict) -> str | None:
+    """Why a standard size is too small for a body (None when it fits): a girth of the body
+    beyond the garment's finished girth by more than `WEAR_STRETCH`. Girths in cm, keyed
+    'chest_cm', 'waist_cm', 'hip_cm'."""
+    for girth in FITTED_GIRTHS.get(garment, ()):
+        made = finished_girth(garment, girth, size_girths[f"{girth}_cm"])
+        body = body_girths[f"{girth}_cm"]
+        if body > made * (1.0 + WEAR_STRETCH):
+            word = "bust / chest" if girth == "chest" else girth
+            return (f"size {size} is too small for this body: its {garment} {'measure' if garment == 'trousers' else 'measures'} {made:.0f} cm around "
+                    f"the {word} (the size's {size_girths[f'{girth}_cm']:.0f} cm with ease) and this body's {word} is "
+                    f"{body:.0f} cm, {100 * (body / made - 1):.0f} % more (cloth gives up to {100 * WEAR_STRETCH:.0f} %)")
+    return None
+
+
 def bezier(name: str, p0, p1, p2, p3) -> Edge:
     return Edge(name, np.array([p0, p1, p2, p3], dtype=float), "bezier")
 
