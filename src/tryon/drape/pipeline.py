@@ -79,6 +79,11 @@ MIN_MORPH_TIME, MAX_MORPH_TIME = 0.4, 2.0  # s
 # Still-air damping (1/s) while the garment settles after the morph: a skirt's or a
 # dress's hem would otherwise swing on for seconds around the equilibrium it has reached.
 SETTLE_AIR_DAMPING = 4.0
+# After the morph nothing drives the cloth but gravity: it settles with steps this many
+# times the morph's. The implicit step damps the slow modes (a denim dress's flared side
+# creeping at 3-4 cm/s after 1.5 s at dt 0.01) and reaches the same rest in fewer steps
+# (the dress: 94 steps instead of 190 unsettled, the same strain to 0.01 %).
+SETTLE_DT_RATIO = 2.0
 
 
 def morph_duration(start: np.ndarray, target: np.ndarray, requested: float | None = None) -> float:
@@ -299,7 +304,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     totals = StepStats()
     stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
                                                 f"the dressed {garment.name}")
-    n_steps = int(np.ceil(t_end / request.dt))
+    n_steps = int(np.ceil(morph_time / request.dt + request.max_settle_time / (SETTLE_DT_RATIO * request.dt)))
     bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
     settled = False
     streak = 0
@@ -322,7 +327,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             state = type(state)(torch.from_numpy(carried), state.v, state.t)
         tic = time.perf_counter()
         before = state
-        state, st = advance(state, request.dt)
+        dt = request.dt if state.t < morph_time else SETTLE_DT_RATIO * request.dt
+        state, st = advance(state, dt)
         speeds = np.linalg.norm(state.v.numpy(), axis=1)
         if speeds.max() > PLAUSIBLE_SPEED:
             # flung: redo the step from its start, without its velocities, in two halves
@@ -330,7 +336,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             record = {"t": round(before.t, 4), "speed_m_s": round(float(speeds.max()), 2), "vertices": fast.tolist()}
             retry = type(before)(before.x, torch.zeros_like(before.v), before.t)
             for _ in range(2):
-                retry, st2 = advance(retry, 0.5 * request.dt)
+                retry, st2 = advance(retry, 0.5 * dt)
                 st.fallback |= st2.fallback
             speeds = np.linalg.norm(retry.v.numpy(), axis=1)
             if speeds.max() > PLAUSIBLE_SPEED:
@@ -362,7 +368,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             out_times.append(state.t)
         speed = float(speeds.max())
         window.append(state.x.numpy().copy())
-        drift = float(np.linalg.norm(window[-1] - window[0], axis=1).max()) / (request.dt * (len(window) - 1)) \
+        drift = float(np.linalg.norm(window[-1] - window[0], axis=1).max()) / (dt * (len(window) - 1)) \
             if len(window) == REST_WINDOW + 1 else float("inf")
         bar.set_postfix(speed=f"{speed:.3f}")
         if state.t >= morph_time and drift < request.rest_speed and not st.fallback:
