@@ -77,8 +77,10 @@ def test_garment_obj_without_material_coordinates_is_refused(tmp_path, capsys):
 
 def test_too_small_garment_on_a_large_body_reports_over_strain(drape_dir, tmp_path):
     out = tmp_path / "tight"
-    rc = main(["drape", "--height-cm", "165", "--bmi", "36", "--gender", "female", "--garment", "tshirt", "--size", "S",
-               *COARSE, "--settle-time", "0.2", "--out", str(out), "--quiet"])
+    args = ["drape", "--height-cm", "165", "--bmi", "36", "--gender", "female", "--garment", "tshirt", "--size", "S",
+            *COARSE, "--settle-time", "0.2", "--out", str(out), "--quiet"]
+    assert main(args) == 2  # refused by default: far too small
+    rc = main(args + ["--allow-tight"])
     assert rc == 0
     tight = json.loads((out / "report.json").read_text())
     normal = json.loads((drape_dir / "report.json").read_text())

@@ -111,6 +111,7 @@ class DrapeRequest:
     morph_friction: float = 0.0  # while the body morphs the cloth slides (as when putting it on)
     print_image: str | None = None  # a PNG printed on the front panel (tryon.garment.prints)
     print_width_cm: float = 100 * PRINT_WIDTH
+    allow_tight: bool = False    # drape a size far too small for the body (to see how it strains) instead of refusing it
 
     def graphic_print(self, garment: DressedGarment) -> GraphicPrint | None:
         """The print placed on `garment`'s front panel (None without `print_image`)."""
@@ -385,16 +386,17 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
 
 
 def check_size_fits(request: DrapeRequest, person: BodyFit) -> None:
-    """Refuse a standard size far too small for the person (`size_too_small`)."""
-    if request.size is None or request.garment_obj is not None:
+    """Refuse a standard size far too small for the person (`size_too_small`) unless
+    `allow_tight` asks to see it strain."""
+    if request.size is None or request.garment_obj is not None or request.allow_tight:
         return
     size = request.size.upper()
     why = size_too_small(request.garment, size, size_measurements(size, request.body.gender), person.achieved)
     if why is not None:
         bigger = [s for s in SIZES[SIZES.index(size) + 1:]
                   if size_too_small(request.garment, s, size_measurements(s, request.body.gender), person.achieved) is None]
-        hint = f"try size {bigger[0]}" if bigger else "no standard size is large enough: leave out --size to draft it to measure"
-        raise TryonError(f"{why}; {hint}")
+        hint = f"try size {bigger[0]}" if bigger else "no standard size is large enough: use --size made-to-measure"
+        raise TryonError(f"{why}; {hint} (or --allow-tight to drape it anyway and see the strain)")
 
 
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
