@@ -11,7 +11,7 @@
    default long enough that no point of the body moves faster than `MORPH_SPEED`)
    (a key-framed collision obstacle); cloth near the skin is carried along with the
    body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
-   the run continues until the cloth is at rest (static equilibrium: every vertex's mean
+   the run continues, with `SETTLE_DT_RATIO` times the step, until the cloth is at rest (static equilibrium: every vertex's mean
    velocity over the last `REST_WINDOW` steps below `rest_speed`) or `max_settle_time`
    passes. The dressed garment must start free of self-crossings (`check_start`); a step that
    flings cloth faster than `PLAUSIBLE_SPEED` is redone from rest in halves (recorded in
