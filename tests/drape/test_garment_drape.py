@@ -156,7 +156,7 @@ def test_trousers_on_men_drape_to_rest(height, weight, size, fabric):
     m = result.metrics
     assert m["settled"] and m["penetration_pct"] == 0.0 and m["self_intersections"] == 0
     assert m["failsafe_steps"] <= 2 and len(m["speed_recoveries"]) <= 1 and m["final_max_speed"] < 1.0
-    assert m["steps"] < int((m["morph_s"] + req.max_settle_time) / req.dt)
+    assert m["simulated_s"] < m["morph_s"] + req.max_settle_time - 1e-6  # at rest before the settling time ran out
     assert m["max_strain"] < 0.4
 
 
@@ -289,16 +289,15 @@ def test_the_morph_lasts_as_long_as_the_body_change_needs():
 
 def test_a_top_that_sews_through_itself_is_dressed_again_with_the_arms_further_out(monkeypatch, size_m_man):
     shape, m = size_m_man
-    calls = []
+    calls, bodies = [], []
 
     class Dressed:
         def __init__(self, crossings):
             self.stats = {"self_intersections": crossings}
 
     def fake_dress(pattern, body, fabric, edge_length, progress=True):
-        hand = body.heads[[k for k in body.heads if "wrist" in k.lower() and k.endswith("L")][0]]
-        shoulder = body.heads[[k for k in body.heads if "upperarm" in k.lower() and k.endswith("L")][0]]
-        d = hand - shoulder
+        d = body.heads["wrist.L"] - body.heads["upperarm01.L"]
+        bodies.append(body)
         calls.append(np.degrees(np.arctan2(abs(d[0]), -d[2])))
         return Dressed(38 if len(calls) == 1 else 0)
 
@@ -306,12 +305,16 @@ def test_a_top_that_sews_through_itself_is_dressed_again_with_the_arms_further_o
     start, garment = pipeline.dress_on_fit_model(draft("tshirt", m, size="M"), shape, m["crotch_height"], None, COARSE)
     assert len(calls) == 2 and garment.stats["self_intersections"] == 0
     assert abs(calls[0] - 45.0) < 2.0 and abs(calls[1] - pipeline.DRESS_ARM_ANGLES[1]) < 2.0
-    assert garment.stats["dress_arm_angle_deg"] == pipeline.DRESS_ARM_ANGLES[1]
+    assert garment.stats["dress_arm_angle_deg"] == pipeline.DRESS_ARM_ANGLES[1] and start is bodies[-1]
+    # a garment without sleeves is not dressed again: wider arms cannot untangle it
+    calls.clear()
+    pipeline.dress_on_fit_model(draft("skirt", m, size="M"), shape, m["crotch_height"], None, COARSE)
+    assert len(calls) == 1
 
 
 def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
-    req = DrapeRequest(Measurements(height_cm=175, weight_kg=137, gender="female"), garment="tshirt", size="XXL")
-    with pytest.raises(TryonError, match=r"size XXL is too small.*bust / chest.*made-to-measure.*--allow-tight"):
+    req = DrapeRequest(Measurements(height_cm=165, bmi=36, gender="female"), garment="tshirt", size="S")
+    with pytest.raises(TryonError, match=r"size S is too small.*bust / chest.*try size X?X?L.*--allow-tight"):
         drape(req, progress=False)
     # the drape matrix drapes such a body made to measure and records why
     from tryon.bench.drape_matrix import MADE_TO_MEASURE, nearest_size

@@ -88,10 +88,8 @@ def cells(quick: bool) -> list[tuple[Body, str, str]]:
 
 def _drape_cell(body: Body, garment: str, size: str, fabric: str, edge: float, out: Path, timeout_s: float) -> dict:
     cmd = [sys.executable, "-m", "tryon.cli", "drape", "--height-cm", str(body.height_cm), "--weight-kg",
-           str(body.weight_kg), "--gender", body.gender, "--garment", garment, "--fabric", fabric,
-           "--edge-length", str(edge), "--out", str(out), "--quiet"]
-    if size != MADE_TO_MEASURE:
-        cmd += ["--size", size]
+           str(body.weight_kg), "--gender", body.gender, "--garment", garment, "--size", size.lower(),
+           "--fabric", fabric, "--edge-length", str(edge), "--out", str(out), "--quiet"]
     tic = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
@@ -105,7 +103,7 @@ def _drape_cell(body: Body, garment: str, size: str, fabric: str, edge: float, o
             "final_speed": rep.get("final_max_speed"), "max_speed": rep.get("max_speed"), "steps": rep.get("steps"),
             "retries": rep.get("retried_steps"), "substeps": rep.get("substeps"),
             "penetration_pct": rep["penetration_pct"], "max_strain": rep["max_strain"],
-            "recovered": rep.get("recoveries", 0), "dress_cached": bool(rep.get("dressing", {}).get("cached")),
+            "recovered": len(rep.get("speed_recoveries", [])), "dress_cached": bool(rep.get("dressing", {}).get("cached")),
             "dress_s": rep.get("timings", {}).get("dress_s")}
 
 

@@ -5,8 +5,8 @@ The garment of each (gender, size) is drafted on the size's fit model and dresse
 once (`references`); every size shares one triangulation (`transfer_mesh`), so the
 garment has the same vertices in every sample. A sample then samples its body directly
 in measurement space (`bodies.sample_body`, no body fit), poses it in the A-pose and runs
-the drape stage exactly as `tryon drape` does (`simulate_drape`: the fit model morphs
-into the body under the garment, then the garment settles).
+the drape stage as `tryon drape` does (`simulate_drape`: the fit model morphs into the
+body under the garment, then the garment settles), with `DATASET_DRAPE`'s settings.
 
 Unit u is body u // len(sizes) in size sizes[u % len(sizes)]: every body is draped in
 every size.
@@ -40,6 +40,12 @@ KIND = "drape"
 # v16), so their drapes differ from version 1's (data/tshirt-v1 was made with version 1)
 GENERATOR_VERSION = 2
 GENDER_CODE = {"male": 0, "female": 1}
+# Drape settings a dataset fixes instead of recording: samples settle with the morph's step
+# throughout, as generator version 2 did (`tryon drape` has since settled with longer steps
+# to the same rest). `allow_tight` belongs to `tryon drape`'s size check, which a dataset's
+# drape stage does not run.
+DATASET_DRAPE = {"settle_dt_ratio": 1.0}
+DRAPE_FIXED = ("allow_tight", *DATASET_DRAPE)
 
 
 @dataclass
@@ -86,7 +92,8 @@ class DrapeDatasetSpec:
                 "topology": {"gender": self.topology[0], "size": self.topology[1].upper()},
                 "edge_length": self.edge_length, "ranges": self.ranges.to_dict(),
                 "drape": {k: v for k, v in asdict(DrapeRequest(Measurements(height_cm=170, weight_kg=70))).items() if k not in
-                          ("body", "garment", "size", "fabric", "edge_length", "print_image", "print_width_cm")}}
+                          ("body", "garment", "size", "fabric", "edge_length", "print_image", "print_width_cm")
+                          + DRAPE_FIXED}}
         split = {"rule": "by body: extrapolation if BMI >= extrapolation_bmi, else train / val / test drawn per body "
                          "from the seed", "train": self.train_fraction, "val": self.val_fraction,
                  "extrapolation_bmi": self.extrapolation_bmi}
@@ -195,7 +202,7 @@ def drape_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit:
     shape = body.shape()
     target = posed_body(shape, "a", drafting_measurements(shape)["crotch_height"])
     req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=spec["fabric"], edge_length=spec["edge_length"],
-                       **spec["drape"])
+                       **spec["drape"], **DATASET_DRAPE)
     n = len(ref.garment.vertices)
     out = sample_header(manifest, body, size, unit)
     try:

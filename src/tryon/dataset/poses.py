@@ -150,7 +150,8 @@ def prepare(manifest: Manifest, folder: Path, progress: bool = True) -> RestDrap
                            mesh=triangulate_pattern(pattern, spec["edge_length"]))
     # simulate_drape reads the request's drape settings only; the body is `start` itself
     req = DrapeRequest(Measurements(height_cm=170, weight_kg=70, gender=spec["gender"]), garment=spec["garment"],
-                       size=spec["size"], fabric=spec["fabric"], edge_length=spec["edge_length"], max_settle_time=1.5)
+                       size=spec["size"], fabric=spec["fabric"], edge_length=spec["edge_length"], max_settle_time=1.5,
+                       settle_dt_ratio=1.0)  # as this generator's version 1 settled its rest drape
     x, _, _, stats, _ = simulate_drape(req, garment, start, start, progress=False)
     if not stats["settled"]:
         raise DatasetError(f"the {spec['garment']} {spec['size']} does not come to rest on its fit model "

@@ -11,7 +11,7 @@
    default long enough that no point of the body moves faster than `MORPH_SPEED`)
    (a key-framed collision obstacle); cloth near the skin is carried along with the
    body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
-   the run continues, with `SETTLE_DT_RATIO` times the step, until the cloth is at rest (static equilibrium: every vertex's mean
+   the run continues, with longer steps (`MAX_SETTLE_DT`), until the cloth is at rest (static equilibrium: every vertex's mean
    velocity over the last `REST_WINDOW` steps below `rest_speed`) or `max_settle_time`
    passes. The dressed garment must start free of self-crossings (`check_start`); a step that
    flings cloth faster than `PLAUSIBLE_SPEED` is redone from rest in halves (recorded in
@@ -79,11 +79,12 @@ MIN_MORPH_TIME, MAX_MORPH_TIME = 0.4, 2.0  # s
 # Still-air damping (1/s) while the garment settles after the morph: a skirt's or a
 # dress's hem would otherwise swing on for seconds around the equilibrium it has reached.
 SETTLE_AIR_DAMPING = 4.0
-# After the morph nothing drives the cloth but gravity: it settles with steps this many
-# times the morph's. The implicit step damps the slow modes (a denim dress's flared side
-# creeping at 3-4 cm/s after 1.5 s at dt 0.01) and reaches the same rest in fewer steps
-# (the dress: 94 steps instead of 190 unsettled, the same strain to 0.01 %).
-SETTLE_DT_RATIO = 2.0
+# After the morph nothing drives the cloth but gravity: it settles with steps
+# `DrapeRequest.settle_dt_ratio` times the morph's (2 by default), up to MAX_SETTLE_DT. The
+# implicit step damps the slow modes (a denim dress's flared side creeping at 3-4 cm/s
+# after 1.5 s at dt 0.01) and reaches the same rest in fewer steps (the dress: 94 steps
+# instead of 190 unsettled, the same strain to 0.01 %).
+MAX_SETTLE_DT = 0.02  # s
 
 
 def morph_duration(start: np.ndarray, target: np.ndarray, requested: float | None = None) -> float:
@@ -112,6 +113,7 @@ class DrapeRequest:
     print_image: str | None = None  # a PNG printed on the front panel (tryon.garment.prints)
     print_width_cm: float = 100 * PRINT_WIDTH
     allow_tight: bool = False    # drape a size far too small for the body (to see how it strains) instead of refusing it
+    settle_dt_ratio: float = 2.0  # after the morph: steps this many times dt (at most MAX_SETTLE_DT; module notes)
 
     def graphic_print(self, garment: DressedGarment) -> GraphicPrint | None:
         """The print placed on `garment`'s front panel (None without `print_image`)."""
@@ -143,6 +145,8 @@ class DrapeRequest:
             raise TryonError(f"edge length {self.edge_length} m is outside 0.004-0.05 m")
         if not 0.001 <= self.dt <= 1 / 30:
             raise TryonError(f"time step {self.dt} s is outside 0.001-0.033 s")
+        if not 1.0 <= self.settle_dt_ratio <= 4.0:
+            raise TryonError(f"settle step ratio {self.settle_dt_ratio} is outside 1-4")
         if self.morph_time is not None and not 0.0 < self.morph_time <= 10.0:
             raise TryonError(f"morph time {self.morph_time} s is outside 0-10 s")
         load_fabric(self.fabric)  # raises FabricError naming the presets
@@ -305,7 +309,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     totals = StepStats()
     stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
                                                 f"the dressed {garment.name}")
-    n_steps = int(np.ceil(morph_time / request.dt + request.max_settle_time / (SETTLE_DT_RATIO * request.dt)))
+    settle_dt = max(request.dt, min(request.settle_dt_ratio * request.dt, MAX_SETTLE_DT))
+    n_steps = int(np.ceil(morph_time / request.dt + request.max_settle_time / settle_dt))
     bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
     settled = False
     streak = 0
@@ -328,7 +333,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             state = type(state)(torch.from_numpy(carried), state.v, state.t)
         tic = time.perf_counter()
         before = state
-        dt = request.dt if state.t < morph_time else SETTLE_DT_RATIO * request.dt
+        dt = request.dt if state.t < morph_time else settle_dt
         state, st = advance(state, dt)
         speeds = np.linalg.norm(state.v.numpy(), axis=1)
         if speeds.max() > PLAUSIBLE_SPEED:
@@ -368,8 +373,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             out_frames.append(state.x.numpy().copy())
             out_times.append(state.t)
         speed = float(speeds.max())
-        window.append(state.x.numpy().copy())
-        drift = float(np.linalg.norm(window[-1] - window[0], axis=1).max()) / (dt * (len(window) - 1)) \
+        window.append((state.t, state.x.numpy().copy()))
+        drift = float(np.linalg.norm(window[-1][1] - window[0][1], axis=1).max()) / (window[-1][0] - window[0][0]) \
             if len(window) == REST_WINDOW + 1 else float("inf")
         bar.set_postfix(speed=f"{speed:.3f}")
         if state.t >= morph_time and drift < request.rest_speed and not st.fallback:
@@ -401,17 +406,20 @@ def check_size_fits(request: DrapeRequest, person: BodyFit) -> None:
 
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
                        progress: bool = True) -> tuple[BodyPose, DressedGarment]:
-    """The fit model's pose and the garment dressed on it: in the A-pose, or with the arms
-    further out when the garment sewn there crosses itself (`DRESS_ARM_ANGLES`)."""
-    for angle in DRESS_ARM_ANGLES:
+    """The fit model's pose and the garment dressed on it: in the A-pose, or, for a garment
+    with sleeves, with the arms further out when the garment sewn there crosses itself
+    (`DRESS_ARM_ANGLES`)."""
+    sleeved = any(p.placement.get("part") == "arm" for p in pattern.panels)
+    for angle in DRESS_ARM_ANGLES if sleeved else DRESS_ARM_ANGLES[:1]:
         pose = "a" if angle == POSES["a"] else arm_pose(shape, angle)
         start = posed_body(shape, pose, crotch_height)
         garment = dress_cached(pattern, start, fabric, edge_length, progress=progress)
         garment.stats["dress_arm_angle_deg"] = angle
         if garment.stats.get("self_intersections", 0) == 0:
             break
-        log.warning("dressing %s: %d crossings with the arms at %.0f degrees", pattern.name,
-                    garment.stats["self_intersections"], angle)
+        if angle != DRESS_ARM_ANGLES[-1]:
+            log.warning("dressing %s again with the arms further out (%d crossings at %.0f degrees)", pattern.name,
+                        garment.stats["self_intersections"], angle)
     return start, garment
 
 

@@ -133,7 +133,7 @@ class Seam:
     a: tuple[str, str]  # (panel, edge)
     b: tuple[str, str]
     reverse: bool = False
-    ease: float = SEAM_EASE  # the longer edge may exceed the shorter by this fraction (+1 mm): sewing takes it up
+    ease: float = SEAM_EASE  # the edges may differ by this fraction of the longer (+1 mm): sewing takes it up
 
     def to_dict(self) -> dict:
         d = {"a": list(self.a), "b": list(self.b), "reverse": self.reverse}
@@ -162,6 +162,8 @@ class Pattern:
                 if side in used:
                     raise PatternError(f"pattern {self.name!r}: edge {side} is sewn twice")
                 used.add(side)
+            if not 0.0 <= s.ease < 0.5:
+                raise PatternError(f"pattern {self.name!r}: seam {s.a} - {s.b} has ease {s.ease}; use 0 to 0.5")
             la, lb = self.seam_edges(s)[0].length(), self.seam_edges(s)[1].length()
             if abs(la - lb) > s.ease * max(la, lb) + 1e-3:
                 raise PatternError(
