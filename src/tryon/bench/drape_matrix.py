@@ -30,7 +30,6 @@ from tryon.io.json_safe import dumps_json
 TARGET_S = 60.0
 GARMENTS = ("tshirt", "longsleeve", "skirt", "trousers", "dress")
 FABRICS = ("11oz-black-denim", "gray-interlock")  # a woven, a knit
-TOPS = ("tshirt", "longsleeve", "dress")
 
 
 @dataclass(frozen=True)
@@ -64,10 +63,10 @@ def nearest_size(garment: str, girths: dict, gender: str) -> tuple[str, str | No
     """The standard size whose chest (tops) or hip (bottoms) is nearest the body's, or
     made to measure (`MADE_TO_MEASURE`, drafted on the body) when even that size is too
     small for it (`tryon drape` refuses it); the second item says why."""
-    from tryon.garment.drafts import size_too_small
+    from tryon.garment.drafts import DEFINING_GIRTH, size_too_small
     from tryon.garment.sizes import SIZES, size_measurements
 
-    key = "chest_cm" if garment in TOPS else "hip_cm"
+    key = f"{DEFINING_GIRTH[garment]}_cm"
     size = min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
     why = size_too_small(garment, size, size_measurements(size, gender), girths)
     return (size, None) if why is None else (MADE_TO_MEASURE, why)

@@ -11,8 +11,9 @@
    default long enough that no point of the body moves faster than `MORPH_SPEED`)
    (a key-framed collision obstacle); cloth near the skin is carried along with the
    body's change of shape (`SkinBinding`) while gravity, elasticity and contact act, then
-   the run continues, with longer steps (`MAX_SETTLE_DT`), until the cloth is at rest (static equilibrium: every vertex's mean
-   velocity over the last `REST_WINDOW` steps below `rest_speed`) or `max_settle_time`
+   the run continues, with longer steps (`MAX_SETTLE_DT`), until the cloth is at rest
+   (static equilibrium: every vertex's mean velocity over the last `REST_WINDOW` steps
+   below `rest_speed`) or `max_settle_time`
    passes. The dressed garment must start free of self-crossings (`check_start`); a step that
    flings cloth faster than `PLAUSIBLE_SPEED` is redone from rest in halves (recorded in
    `speed_recoveries`), and `FAILSAFE_STREAK` frozen fail-safe steps in a row, or
@@ -411,8 +412,7 @@ def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length
     (`DRESS_ARM_ANGLES`)."""
     sleeved = any(p.placement.get("part") == "arm" for p in pattern.panels)
     for angle in DRESS_ARM_ANGLES if sleeved else DRESS_ARM_ANGLES[:1]:
-        pose = "a" if angle == POSES["a"] else arm_pose(shape, angle)
-        start = posed_body(shape, pose, crotch_height)
+        start = posed_body(shape, arm_pose(shape, angle), crotch_height)
         garment = dress_cached(pattern, start, fabric, edge_length, progress=progress)
         garment.stats["dress_arm_angle_deg"] = angle
         if garment.stats.get("self_intersections", 0) == 0:

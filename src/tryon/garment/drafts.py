@@ -43,30 +43,24 @@ class Ease:
 # garment's finished girth by more than this: a BMI-45 woman's 150 cm bust in a women's
 # XXL T-shirt (135 cm with ease, 11 % less) draped only by stretching the cloth 35 %.
 WEAR_STRETCH = 0.10
-FITTED_GIRTHS = {"tshirt": ("chest",), "longsleeve": ("chest",), "dress": ("chest",), "skirt": ("hip",),
-                 "trousers": ("hip",)}
-
-
-def finished_girth(garment: str, girth: str, size_cm: float, ease: Ease | None = None) -> float:
-    """A garment's girth (cm) at `girth` ('chest', 'waist', 'hip') for a size's body girth."""
-    ease = ease or Ease()
-    extra = {"chest": ease.chest, "waist": ease.waistband if garment == "trousers" else ease.waist, "hip": ease.hip}
-    return size_cm + 100.0 * extra[girth]
+DEFINING_GIRTH = {"tshirt": "chest", "longsleeve": "chest", "dress": "chest", "skirt": "hip", "trousers": "hip"}
 
 
 def size_too_small(garment: str, size: str, size_girths: dict, body_girths: dict) -> str | None:
-    """Why a standard size is too small for a body (None when it fits): a girth of the body
-    beyond the garment's finished girth by more than `WEAR_STRETCH`. Girths in cm, keyed
-    'chest_cm', 'waist_cm', 'hip_cm'."""
-    for girth in FITTED_GIRTHS.get(garment, ()):
-        made = finished_girth(garment, girth, size_girths[f"{girth}_cm"])
-        body = body_girths[f"{girth}_cm"]
-        if body > made * (1.0 + WEAR_STRETCH):
-            word = "bust / chest" if girth == "chest" else girth
-            return (f"size {size} is too small for this body: its {garment} {'measure' if garment == 'trousers' else 'measures'} {made:.0f} cm around "
-                    f"the {word} (the size's {size_girths[f'{girth}_cm']:.0f} cm with ease) and this body's {word} is "
-                    f"{body:.0f} cm, {100 * (body / made - 1):.0f} % more (more than {100 * WEAR_STRETCH:.0f} % is far too small)")
-    return None
+    """Why a standard size is too small for a body (None when it fits): the body's girth at
+    the garment's `DEFINING_GIRTH` beyond the garment's finished girth there (the size's
+    girth with `Ease`) by more than `WEAR_STRETCH`. Girths in cm, keyed 'chest_cm', 'hip_cm'."""
+    girth = DEFINING_GIRTH[garment]
+    ease = Ease()
+    made = size_girths[f"{girth}_cm"] + 100.0 * (ease.chest if girth == "chest" else ease.hip)
+    body = body_girths[f"{girth}_cm"]
+    if body <= made * (1.0 + WEAR_STRETCH):
+        return None
+    word = "bust / chest" if girth == "chest" else girth
+    verb = "measure" if garment == "trousers" else "measures"
+    return (f"size {size} is too small for this body: its {garment} {verb} {made:.0f} cm around the {word} "
+            f"(the size's {size_girths[f'{girth}_cm']:.0f} cm with ease) and this body's {word} is {body:.0f} cm, "
+            f"{100 * (body / made - 1):.0f} % more (more than {100 * WEAR_STRETCH:.0f} % is far too small)")
 
 
 def bezier(name: str, p0, p1, p2, p3) -> Edge:
