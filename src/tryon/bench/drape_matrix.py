@@ -28,6 +28,9 @@ from tryon.io.atomic import atomic_write, claim_work_dir
 from tryon.io.json_safe import dumps_json
 
 TARGET_S = 60.0
+# A cell's simulated drape stops with the drape's own diagnosis after this long (a pass
+# needs far less); the process limit (`timeout_s`) also covers body fit and dressing.
+SIM_LIMIT_S = 2 * TARGET_S
 GARMENTS = ("tshirt", "longsleeve", "skirt", "trousers", "dress")
 FABRICS = ("11oz-black-denim", "gray-interlock")  # a woven, a knit
 
@@ -88,7 +91,8 @@ def cells(quick: bool) -> list[tuple[Body, str, str]]:
 def _drape_cell(body: Body, garment: str, size: str, fabric: str, edge: float, out: Path, timeout_s: float) -> dict:
     cmd = [sys.executable, "-m", "tryon.cli", "drape", "--height-cm", str(body.height_cm), "--weight-kg",
            str(body.weight_kg), "--gender", body.gender, "--garment", garment, "--size", size.lower(),
-           "--fabric", fabric, "--edge-length", str(edge), "--out", str(out), "--quiet"]
+           "--fabric", fabric, "--edge-length", str(edge), "--out", str(out), "--quiet",
+           "--time-limit", str(SIM_LIMIT_S)]
     tic = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
@@ -112,7 +116,7 @@ def passed(rec: dict) -> bool:
 
 
 def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: float | None = None,
-                     timeout_s: float = 240.0) -> list[dict]:
+                     timeout_s: float = 360.0) -> list[dict]:
     """Drape every cell (resuming finished ones), print the table, write JSON and the
     picture grid (`<json stem>.png`); cell folders in `<json stem>-cells/`."""
     json_path = Path(json_path)

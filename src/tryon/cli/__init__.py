@@ -96,7 +96,8 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     out = check_output_dir(args.out, force=args.force)
     req = DrapeRequest(_measurements(args), garment=args.garment, size=size, fabric=args.fabric,
                        edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time,
-                       print_image=args.print_image, print_width_cm=args.print_width_cm, allow_tight=args.allow_tight)
+                       print_image=args.print_image, print_width_cm=args.print_width_cm, allow_tight=args.allow_tight,
+                       time_limit_s=args.time_limit)
     req.validate()
     if req.garment_obj is not None:  # a malformed garment is reported before the body is fitted
         from tryon.drape.obj_garment import garment_from_obj
@@ -398,6 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--allow-tight", action="store_true",
                    help="drape a size far too small for the body (refused by default) to see how it strains")
     d.add_argument("--settle-time", type=float, default=1.5, help="longest simulated settling time after the morph (s)")
+    d.add_argument("--time-limit", type=float, default=600.0,
+                   help="wall-clock seconds the simulated drape may take; beyond, it stops and says where it is stuck")
     d.add_argument("--method", choices=["simulate", "learned"], default="simulate",
                    help="simulate the drape, or predict it with the trained network (milliseconds; standard sizes it knows)")
     d.add_argument("--model", help="a draping model file (tryon train drape) instead of the one shipped for the garment")
