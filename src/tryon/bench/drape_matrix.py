@@ -63,16 +63,22 @@ MADE_TO_MEASURE = "MTM"
 
 
 def nearest_size(garment: str, girths: dict, gender: str) -> tuple[str, str | None]:
-    """The standard size whose chest (tops) or hip (bottoms) is nearest the body's, or
-    made to measure (`MADE_TO_MEASURE`, drafted on the body) when even that size is too
-    small for it (`tryon drape` refuses it); the second item says why."""
+    """The standard size whose chest (tops) or hip (bottoms) is nearest the body's, or the
+    next larger one when that is too small for the body (`tryon drape` refuses it: a
+    waistband that cannot close), or made to measure (`MADE_TO_MEASURE`, drafted on the
+    body) when every larger size is too; the second item says why."""
     from tryon.garment.drafts import DEFINING_GIRTH, size_too_small
     from tryon.garment.sizes import SIZES, size_measurements
 
     key = f"{DEFINING_GIRTH[garment]}_cm"
-    size = min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
-    why = size_too_small(garment, size, size_measurements(size, gender), girths)
-    return (size, None) if why is None else (MADE_TO_MEASURE, why)
+    nearest = min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
+    why = None
+    for size in SIZES[SIZES.index(nearest):]:
+        too_small = size_too_small(garment, size, size_measurements(size, gender), girths)
+        if too_small is None:
+            return size, None
+        why = why or too_small
+    return MADE_TO_MEASURE, why
 
 
 def body_girths(body: Body) -> dict:

@@ -71,13 +71,15 @@ def _titled(img: np.ndarray, title: str) -> np.ndarray:
 
 def _sample_request(data, row: int, png: Path, width_cm: float):
     from tryon.dataset.bodies import BodyRanges, sample_body
+    from tryon.dataset.drapes import DATASET_DRAPE
     from tryon.drape.pipeline import DrapeRequest
 
     spec = data.manifest.spec
     body = sample_body(data.manifest.seed, int(data.arrays["body"][row]), BodyRanges.from_dict(spec["ranges"]))
     size = spec["sizes"][int(data.arrays["size"][row])]
     return body, DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=spec["fabric"],
-                              edge_length=spec["edge_length"], print_image=str(png), print_width_cm=width_cm, **spec["drape"])
+                              edge_length=spec["edge_length"], print_image=str(png), print_width_cm=width_cm, **spec["drape"],
+                              **DATASET_DRAPE)
 
 
 def run_print_bench(json_path: str | Path, data_dir: str | Path, model_path: str | Path | None = None, count: int = 4,

@@ -400,7 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drape a size far too small for the body (refused by default) to see how it strains")
     d.add_argument("--settle-time", type=float, default=1.5, help="longest simulated settling time after the morph (s)")
     d.add_argument("--time-limit", type=float, default=600.0,
-                   help="wall-clock seconds the simulated drape may take; beyond, it stops and says where it is stuck")
+                   help="wall-clock seconds the simulated drape may take; past them it stops after the step in progress and says where it is stuck")
     d.add_argument("--method", choices=["simulate", "learned"], default="simulate",
                    help="simulate the drape, or predict it with the trained network (milliseconds; standard sizes it knows)")
     d.add_argument("--model", help="a draping model file (tryon train drape) instead of the one shipped for the garment")

@@ -15,6 +15,7 @@ every size.
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -43,8 +44,9 @@ GENDER_CODE = {"male": 0, "female": 1}
 # Drape settings a dataset fixes instead of recording: samples settle with the morph's step
 # throughout, as generator version 2 did (`tryon drape` has since settled with longer steps
 # to the same rest). `allow_tight` belongs to `tryon drape`'s size check, which a dataset's
-# drape stage does not run.
-DATASET_DRAPE = {"settle_dt_ratio": 1.0}
+# drape stage does not run. Their morphs are paced by the whole body, as version 2's were,
+# and a sample's outcome does not depend on how fast the machine is (no time limit).
+DATASET_DRAPE = {"settle_dt_ratio": 1.0, "morph_whole_body": True, "time_limit_s": math.inf}
 DRAPE_FIXED = ("allow_tight", *DATASET_DRAPE)
 
 

@@ -414,7 +414,7 @@ def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: fl
         for sel, axis in sleeves:
             moved[sel] += shift * axis
         moved, pushed = clear_of_skin(moved, body, clearance)
-        moved = _unfold(moved, mesh.faces, edges, mesh.panel_of_vertex, body, clearance)
+        moved, _ = _unfold(moved, mesh.faces, edges, mesh.panel_of_vertex, body, clearance)
         if not sleeves or len(edge_face_intersections(moved, edges, moved, mesh.faces, True, alias)) == 0:
             return moved, pushed, float(shift)  # without sleeves: nothing to move (a crossing is counted after sewing)
     raise SimulationError(f"placing {mesh.pattern.name}: the panels still cross each other with the sleeves "
@@ -422,19 +422,21 @@ def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: fl
 
 
 def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarray, body: BodyPose, clearance: float,
-            rounds: int = 10) -> np.ndarray:
+            rounds: int = 10) -> tuple[np.ndarray, int]:
     """Folds of a panel through itself that pushing out of the skin made (neighbours
     pushed to either side of a crease such as the armpit) smoothed away: the vertices of
     crossing edges and faces and their neighbours take their neighbours' mean, then are
-    pushed out again."""
+    pushed out again. Returns the positions and how many crossings there were at first."""
     from tryon.sim.collision.intersections import edge_face_intersections
 
     n = len(x)
     adj = sp.coo_matrix((np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(n, n)).tocsr()
     degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)
+    first = None
     for _ in range(rounds):
         hits = edge_face_intersections(x, edges, x, faces, True)
         hits = hits[panel[edges[hits[:, 0], 0]] == panel[faces[hits[:, 1], 0]]]
+        first = len(hits) if first is None else first
         if len(hits) == 0:
             break
         near = np.zeros(n, bool)
@@ -444,7 +446,7 @@ def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarr
         x = x.copy()
         x[near] = (adj @ x)[near] / degree[near, None]
         x, _ = clear_of_skin(x, body, clearance)
-    return x
+    return x, int(first or 0)
 
 
 def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
@@ -624,9 +626,10 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
         raise TryonError(f"the mesh handed to dress {pattern.name} triangulates another pattern")
     x = place_pattern(mesh, body, clearance)
     st = mesh.stitches
+    unfolded = 0
     if len(st) and float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) <= SEAMS_CLOSED:
         # where a trouser panel turns from leg to torso above the crotch its rows can fold
-        x = _unfold(x, mesh.faces, mesh_edges(mesh.faces), mesh.panel_of_vertex, body, clearance)
+        x, unfolded = _unfold(x, mesh.faces, mesh_edges(mesh.faces), mesh.panel_of_vertex, body, clearance)
     gap0 = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) if len(st) else 0.0
     closed = gap0 <= SEAMS_CLOSED
     if closed:
@@ -644,7 +647,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     else:
         # welding a seam a millimetre or two open can put it through a tight fold next to
         # it (the bodice folded back under the armhole at the armpit): smooth such folds out
-        pos = _unfold(pos, faces, mesh_edges(faces), np.zeros(len(pos), np.int64), body, DRESSING_THICKNESS)
+        pos, unfolded = _unfold(pos, faces, mesh_edges(faces), np.zeros(len(pos), np.int64), body, DRESSING_THICKNESS)
     uv = np.zeros((len(pos), 2))
     uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
     # a placement welded at once relaxes from its placement strain; a sewn one from the
@@ -657,7 +660,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     counts = np.bincount(group, minlength=len(pos))
     e = mesh_edges(faces)
     n_self, _ = col.count_intersections(pos, faces, e, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
-    stats.update({"vertices": int(len(pos)), "faces": int(len(faces)), "pushed_out_at_start": pushed,
+    stats.update({"vertices": int(len(pos)), "faces": int(len(faces)), "pushed_out_at_start": pushed, "unfolded_crossings": unfolded,
                   "self_intersections": int(n_self), "edge_length_m": edge_length, "dress_s": time.perf_counter() - t0})
     if n_self:
         log.warning("dressing %s: the sewn garment crosses itself at %d edge-triangle pairs", pattern.name, n_self)

@@ -51,11 +51,13 @@ def penetration(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray
             "mean_skin_distance_mm": float(d.mean() * 1000.0)}
 
 
-def drape_metrics(result, solver) -> dict:
+def drape_metrics(result, solver, body_shift: np.ndarray | None = None) -> dict:
+    """Fit numbers of a drape; `body_shift` (m): where the solver's body lies relative to
+    the person (`simulate_drape` morphs the body without its overall move)."""
     model = solver.model
     x = result.x
     strain = face_strain(model, x)
-    pressure = contact_pressure(solver, x, float(result.frame_times[-1]))
+    pressure = contact_pressure(solver, x - (0.0 if body_shift is None else body_shift), float(result.frame_times[-1]))
     pen = penetration(x, result.body_vertices, result.body_faces)
     n_self, n_body = col.count_intersections(x, model.faces.numpy(), model.edges.numpy(), result.body_vertices,
                                              result.body_faces, solver.model.obstacles.edges)
