@@ -398,7 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
     d.add_argument("--allow-tight", action="store_true",
                    help="drape a size far too small for the body (refused by default) to see how it strains")
-    d.add_argument("--settle-time", type=float, default=1.5, help="longest simulated settling time after the morph (s)")
+    d.add_argument("--settle-time", type=float, default=3.0, help="longest simulated settling time after the morph (s)")
     d.add_argument("--time-limit", type=float, default=600.0,
                    help="wall-clock seconds the simulated drape may take; past them it stops after the step in progress and says where it is stuck")
     d.add_argument("--method", choices=["simulate", "learned"], default="simulate",

@@ -47,6 +47,8 @@ GENDER_CODE = {"male": 0, "female": 1}
 # drape stage does not run. Their morphs are paced by the whole body, as version 2's were,
 # and a sample's outcome does not depend on how fast the machine is (no time limit).
 DATASET_DRAPE = {"settle_dt_ratio": 1.0, "morph_whole_body": True, "time_limit_s": math.inf}
+# ... and settings a dataset records in its manifest, with the values generator 2 used
+DATASET_RECORDED = {"max_settle_time": 1.5}
 DRAPE_FIXED = ("allow_tight", *DATASET_DRAPE)
 
 
@@ -93,7 +95,8 @@ class DrapeDatasetSpec:
         spec = {"garment": self.garment, "sizes": list(self.sizes), "fabric": self.fabric,
                 "topology": {"gender": self.topology[0], "size": self.topology[1].upper()},
                 "edge_length": self.edge_length, "ranges": self.ranges.to_dict(),
-                "drape": {k: v for k, v in asdict(DrapeRequest(Measurements(height_cm=170, weight_kg=70))).items() if k not in
+                "drape": {k: v for k, v in asdict(DrapeRequest(Measurements(height_cm=170, weight_kg=70),
+                                                                    **DATASET_RECORDED)).items() if k not in
                           ("body", "garment", "size", "fabric", "edge_length", "print_image", "print_width_cm")
                           + DRAPE_FIXED}}
         split = {"rule": "by body: extrapolation if BMI >= extrapolation_bmi, else train / val / test drawn per body "
