@@ -140,6 +140,21 @@ def test_a_fold_in_the_trouser_placement_is_smoothed_out_before_welding():
     assert g.stats["unfolded_crossings"] >= len(folded)
 
 
+def test_trousers_made_to_measure_for_a_very_heavy_man_keep_every_triangle():
+    # 200 cm, 180 kg: pushing the placed trousers out of his skin put all three corners of
+    # a triangle on one point (a zero-area face the simulator refuses); they are spread again
+    from tryon.body.fit import fit_body
+
+    fit = fit_body(Measurements(height_cm=200, weight_kg=180, gender="male"))
+    m = drafting_measurements(fit.shape)
+    p = draft("trousers", m, size="made-to-measure")
+    body = posed_body(fit.shape, "a", m["crotch_height"])
+    g = dress_pattern(p, body, load_fabric("gray-interlock"), progress=False)
+    tri = g.vertices[g.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    assert area.min() > 1e-6 and g.stats["self_intersections"] == 0
+
+
 def test_a_weld_through_a_fold_at_the_armpit_is_smoothed_out():
     # men's XL long sleeve on its fit model in the A-pose: the seams sewn 1.6 mm open and
     # uncrossed; welding them put the armhole seam through the bodice folded under it

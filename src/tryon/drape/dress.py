@@ -449,6 +449,36 @@ def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarr
     return x, int(first or 0)
 
 
+def _uncollapse(x: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, body: BodyPose, clearance: float,
+                rounds: int = 10) -> np.ndarray:
+    """Triangles that pushing out of the skin collapsed (corners inside a fold of a very
+    heavy body all moved to about the same point) spread again: their vertices and their
+    neighbours take their neighbours' mean, then are pushed out again."""
+    from tryon.sim.collision.geometry import mesh_edges
+
+    def areas(p, tri):
+        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+    uv3 = np.concatenate([corner_uv, np.zeros(corner_uv.shape[:2] + (1,))], axis=2)
+    rest = areas(uv3, faces)
+    edges = mesh_edges(faces)
+    n = len(x)
+    adj = sp.coo_matrix((np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(n, n)).tocsr()
+    degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)
+    for _ in range(rounds):
+        bad = areas(x[faces], faces) < 0.05 * rest
+        if not bad.any():
+            break
+        near = np.zeros(n, bool)
+        near[faces[bad].ravel()] = True
+        near |= adj @ near > 0
+        near |= adj @ near > 0
+        x = x.copy()
+        x[near] = (adj @ x)[near] / degree[near, None]
+        x, _ = clear_of_skin(x, body, clearance)
+    return x
+
+
 def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
     """Points closer to the skin than `clearance` (or inside) moved out along the skin's
     normal (`tryon.sim.collision.push_outside`), and how many moved."""
@@ -644,6 +674,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     pos, faces, corner_uv, group = merge_stitched(mesh, x)
     if closed:
         pos, pushed = clear_of_skin(pos, body, clearance)
+        pos = _uncollapse(pos, faces, corner_uv, body, clearance)
     else:
         # welding a seam a millimetre or two open can put it through a tight fold next to
         # it (the bodice folded back under the armhole at the armpit): smooth such folds out
