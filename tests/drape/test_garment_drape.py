@@ -401,6 +401,9 @@ def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
     size, why = nearest_size("trousers", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
     assert size == MADE_TO_MEASURE and "hip" in why
     assert nearest_size("tshirt", {"chest_cm": 120, "waist_cm": 108, "hip_cm": 127}, "female") == ("XXL", None)
+    # a T-shirt whose chest would stretch over this man but whose hem would not go over his hip
+    size, why = nearest_size("tshirt", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
+    assert size == MADE_TO_MEASURE and "hip is 148 cm" in why and "chest with ease" in why
     # a skirt whose hip would stretch over this body but whose waistband would not close
     size, why = nearest_size("skirt", {"chest_cm": 150, "waist_cm": 132, "hip_cm": 147}, "female")
     assert size == MADE_TO_MEASURE and "waist is 132 cm" in why
