@@ -421,6 +421,28 @@ def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: fl
                           f"{100 * SLEEVE_SHIFT_MAX:.0f} cm out along the arms")
 
 
+def _smooth_out(x: np.ndarray, edges: np.ndarray, body: BodyPose, clearance: float, flawed, rings: int,
+                rounds: int = 10) -> tuple[np.ndarray, int]:
+    """Up to `rounds` times: the vertices `flawed(x)` marks (a mask and a count of flaws)
+    and `rings` rings of their neighbours take their neighbours' mean, then are pushed
+    out of the skin again. Returns the positions and the count of flaws at first."""
+    n = len(x)
+    adj = sp.coo_matrix((np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(n, n)).tocsr()
+    degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)
+    first = None
+    for _ in range(rounds):
+        near, count = flawed(x)
+        first = count if first is None else first
+        if count == 0:
+            break
+        for _ in range(rings):
+            near |= adj @ near > 0
+        x = x.copy()
+        x[near] = (adj @ x)[near] / degree[near, None]
+        x, _ = clear_of_skin(x, body, clearance)
+    return x, int(first or 0)
+
+
 def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarray, body: BodyPose, clearance: float,
             rounds: int = 10) -> tuple[np.ndarray, int]:
     """Folds of a panel through itself that pushing out of the skin made (neighbours
@@ -429,54 +451,41 @@ def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarr
     pushed out again. Returns the positions and how many crossings there were at first."""
     from tryon.sim.collision.intersections import edge_face_intersections
 
-    n = len(x)
-    adj = sp.coo_matrix((np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(n, n)).tocsr()
-    degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)
-    first = None
-    for _ in range(rounds):
-        hits = edge_face_intersections(x, edges, x, faces, True)
+    def crossings(p: np.ndarray) -> tuple[np.ndarray, int]:
+        hits = edge_face_intersections(p, edges, p, faces, True)
         hits = hits[panel[edges[hits[:, 0], 0]] == panel[faces[hits[:, 1], 0]]]
-        first = len(hits) if first is None else first
-        if len(hits) == 0:
-            break
-        near = np.zeros(n, bool)
+        near = np.zeros(len(p), bool)
         near[edges[hits[:, 0]].ravel()] = True
         near[faces[hits[:, 1]].ravel()] = True
-        near |= adj @ near > 0
-        x = x.copy()
-        x[near] = (adj @ x)[near] / degree[near, None]
-        x, _ = clear_of_skin(x, body, clearance)
-    return x, int(first or 0)
+        return near, len(hits)
+
+    return _smooth_out(x, edges, body, clearance, crossings, rings=1, rounds=rounds)
+
+
+def _triangle_areas(corners: np.ndarray) -> np.ndarray:
+    """Areas of triangles [F,3,D] (D = 2 or 3)."""
+    d1, d2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    if corners.shape[2] == 2:
+        return 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(d1, d2), axis=1)
 
 
 def _uncollapse(x: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, body: BodyPose, clearance: float,
                 rounds: int = 10) -> np.ndarray:
     """Triangles that pushing out of the skin collapsed (corners inside a fold of a very
-    heavy body all moved to about the same point) spread again: their vertices and their
-    neighbours take their neighbours' mean, then are pushed out again."""
+    heavy body all moved to about the same point) spread again: their vertices and two
+    rings of neighbours take their neighbours' mean, then are pushed out again."""
     from tryon.sim.collision.geometry import mesh_edges
 
-    def areas(p, tri):
-        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    rest = _triangle_areas(corner_uv)
 
-    uv3 = np.concatenate([corner_uv, np.zeros(corner_uv.shape[:2] + (1,))], axis=2)
-    rest = areas(uv3, faces)
-    edges = mesh_edges(faces)
-    n = len(x)
-    adj = sp.coo_matrix((np.ones(2 * len(edges)), (edges.reshape(-1), edges[:, ::-1].reshape(-1))), shape=(n, n)).tocsr()
-    degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)
-    for _ in range(rounds):
-        bad = areas(x[faces], faces) < 0.05 * rest
-        if not bad.any():
-            break
-        near = np.zeros(n, bool)
+    def collapsed(p: np.ndarray) -> tuple[np.ndarray, int]:
+        bad = _triangle_areas(p[faces]) < 0.05 * rest
+        near = np.zeros(len(p), bool)
         near[faces[bad].ravel()] = True
-        near |= adj @ near > 0
-        near |= adj @ near > 0
-        x = x.copy()
-        x[near] = (adj @ x)[near] / degree[near, None]
-        x, _ = clear_of_skin(x, body, clearance)
-    return x
+        return near, int(bad.sum())
+
+    return _smooth_out(x, mesh_edges(faces), body, clearance, collapsed, rings=2, rounds=rounds)[0]
 
 
 def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
@@ -574,7 +583,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
     model = cloth_on_body(cloth, fabric, Obstacle("body", body.vertices, body.faces), DRESSING_THICKNESS,
                           self_collision=True, still=True, stitches=mesh.stitches, stitch_stiffness=stiffness)
     st = mesh.stitches
-    gap0 = float(np.linalg.norm(x0[st[:, 0]] - x0[st[:, 1]], axis=1).max()) if len(st) else 0.0
+    gap0 = stitch_gap(x0, st)
     ramp = {"k": stiffness}
 
     def tightening(step: int, t: float) -> Control:
@@ -585,7 +594,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
 
     def closed(rec) -> bool:  # shut, or as shut as it gets (a weldable gap that stopped closing)
         x = rec.state.x.numpy()
-        seams["gap"] = gap = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max())
+        seams["gap"] = gap = stitch_gap(x, st)
         history = seams["history"]
         history.append(gap)
         stalled = len(history) > SEW_STALL_STEPS and gap > 0.98 * history[-1 - SEW_STALL_STEPS]
@@ -611,6 +620,11 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
 
 
 SEAMS_CLOSED = 0.005  # m: a placement whose every stitch pair is this close is welded at once
+
+
+def stitch_gap(x: np.ndarray, stitches: np.ndarray) -> float:
+    """The widest gap (m) between stitched vertex pairs; 0 without stitches."""
+    return float(np.linalg.norm(x[stitches[:, 0]] - x[stitches[:, 1]], axis=1).max()) if len(stitches) else 0.0
 SEW_TIGHTENING = 1.06  # the stitch stiffness's growth per sewing step
 
 
@@ -657,10 +671,10 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     x = place_pattern(mesh, body, clearance)
     st = mesh.stitches
     unfolded = 0
-    if len(st) and float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) <= SEAMS_CLOSED:
+    if len(st) and stitch_gap(x, st) <= SEAMS_CLOSED:
         # where a trouser panel turns from leg to torso above the crotch its rows can fold
         x, unfolded = _unfold(x, mesh.faces, mesh_edges(mesh.faces), mesh.panel_of_vertex, body, clearance)
-    gap0 = float(np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1).max()) if len(st) else 0.0
+    gap0 = stitch_gap(x, st)
     closed = gap0 <= SEAMS_CLOSED
     if closed:
         stats = {"sew_steps": 0, "sew_gap_start_m": gap0, "sew_gap_end_m": 0.0, "sew_s": 0.0}

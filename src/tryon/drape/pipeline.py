@@ -126,7 +126,7 @@ class DrapeRequest:
     edge_length: float = 0.012   # m
     dt: float = 0.01             # s
     morph_time: float | None = None  # s; None: the largest displacement of the body under the garment / MORPH_SPEED
-    max_settle_time: float = 3.0  # s (MAX_SETTLE_TIME's note)
+    max_settle_time: float = 3.0  # s (the note under MAX_SETTLE_DT)
     rest_speed: float = 0.02     # m/s
     thickness: float = 0.004     # m, contact distance kept from the skin
     friction: float = 0.4        # skin-cloth Coulomb coefficient once the body has its shape
