@@ -25,7 +25,7 @@ BMIS = (18.0, 25.0, 35.0)
 
 def _one(gender: str, bmi: float, edge_length: float, threads: int, timeout_s: float) -> dict:
     code = (
-        "import json, torch; torch.set_num_threads(%d)\n"
+        "import json, numba, torch; torch.set_num_threads(%d); numba.set_num_threads(min(%d, numba.config.NUMBA_NUM_THREADS))\n"
         "from tryon.body.fit import Measurements\n"
         "from tryon.drape import DrapeRequest, drape\n"
         "r = drape(DrapeRequest(Measurements(height_cm=%r, bmi=%r, gender=%r), garment='tshirt', size='M',\n"
@@ -36,7 +36,7 @@ def _one(gender: str, bmi: float, edge_length: float, threads: int, timeout_s: f
         "  'overstrained_area_pct': m['overstrained_area_pct'], 'steps': m['steps'], 'settled': m['settled'],\n"
         "  'retried_steps': m['retried_steps'], 'garment_vertices': int(len(r.garment.vertices)),\n"
         "  'dressing_cached': bool(r.garment.stats.get('cached', False)), 'bmi_achieved': r.person.achieved['bmi']}))\n"
-    ) % (threads, HEIGHT_CM[gender], bmi, gender, edge_length)
+    ) % (threads, threads, HEIGHT_CM[gender], bmi, gender, edge_length)
     try:
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired:

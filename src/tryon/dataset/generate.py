@@ -100,9 +100,9 @@ def run_generator(store: ShardStore, prepare: Prepare, make: Make, workers: int 
 
 
 def _task(make: Make, manifest: Manifest, shared: object, unit: int) -> tuple[int, dict]:
-    import torch
+    from tryon.parallel.executors import one_thread_per_worker
 
-    torch.set_num_threads(1)
+    one_thread_per_worker()
     return unit, make(manifest, shared, unit)
 
 

@@ -212,12 +212,21 @@ class _Board:
         return out
 
 
-def _segment_task(hier: Hierarchy, spec: SegmentSpec, board) -> SegmentResult:
-    """Body of the Ray task: drive `segment_run`, reporting progress, polling for the end."""
-    import ray
+def one_thread_per_worker() -> None:
+    """A Ray worker gets one core: torch and numba (the solver's and collision queries'
+    threads) on one thread each, or the workers of a machine fight over its cores."""
+    import numba
     import torch
 
     torch.set_num_threads(1)
+    numba.set_num_threads(1)
+
+
+def _segment_task(hier: Hierarchy, spec: SegmentSpec, board) -> SegmentResult:
+    """Body of the Ray task: drive `segment_run`, reporting progress, polling for the end."""
+    import ray
+
+    one_thread_per_worker()
     gen = segment_run(hier, spec)
     progress = next(gen)
     end = spec.end
@@ -334,14 +343,13 @@ def _warm_worker(hier: Hierarchy, board=None, workers: int = 1, wait_s: float = 
     step, one obstacle clearance), then check in at `board` and wait (up to `wait_s`)
     until `workers` distinct processes have; returns its pid."""
     import ray
-    import torch
 
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import run
 
     from tryon.parallel.recovery import clear_of_obstacles
 
-    torch.set_num_threads(1)
+    one_thread_per_worker()
     fine = hier.fine
     state = fine.model.initial_state()
     run(ImplicitEulerSolver(fine.model, fine.options), state, fine.dt, until=1)

@@ -1,6 +1,7 @@
 """Collision detection and response (tryon.sim.collision) against brute-force references,
 dense time sampling and known answers."""
 
+import numba
 import numpy as np
 import pytest
 import torch
@@ -8,7 +9,7 @@ import trimesh
 
 from tryon.errors import MeshError
 from tryon.sim import collision as col
-from tryon.sim.collision import ccd, primitives as prim
+from tryon.sim.collision import ccd, primitives as prim, threads as collision_threads
 from tryon.sim.collision.bvh import BVH, overlapping_pairs
 
 H = 0.005
@@ -343,6 +344,37 @@ def test_bvh_pairs_match_brute_force():
         got = overlapping_pairs(BVH.build(lo_a, hi_a))
         assert {tuple(sorted(p)) for p in got.tolist()} == set(zip(*np.nonzero(np.triu(ov_self, 1))))
         assert len(got) == int(np.triu(ov_self, 1).sum())
+
+
+def _contacts_equal(a, b):
+    return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in ("idx", "w", "n", "d", "kind", "time"))
+
+
+def test_collision_queries_on_threads_equal_one_pass(monkeypatch):
+    """Pairs and contacts found in chunks on two threads equal those of one pass, in order."""
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs numba with 2 threads")
+    x, faces, edges = _crumpled_two_layers(n=15)
+    ob, ob_faces, ob_edges = ball([0.01, 0.0, -0.053], 0.05, subdivisions=3)
+    x1 = x + np.random.default_rng(5).normal(scale=0.002, size=x.shape)
+    tree = BVH.build(x[faces].min(1) - H, x[faces].max(1) + H)
+
+    def queries():
+        return (overlapping_pairs(tree), col.find_proximities(x, faces, edges, ob, ob_faces, ob_edges, H),
+                col.find_impacts(x, x1, faces, edges, ob, ob + 0.001, ob_faces, ob_edges, H))
+
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        pairs1, prox1, imp1 = queries()
+        numba.set_num_threads(2)
+        monkeypatch.setattr(collision_threads, "CHUNK", 64)  # many chunks even on this small scene
+        pairs2, prox2, imp2 = queries()
+    finally:
+        numba.set_num_threads(threads)
+    assert len(pairs1) > 10 * 64 and len(prox1) > 100 and len(imp1) > 10
+    assert np.array_equal(pairs1, pairs2)
+    assert _contacts_equal(prox1, prox2) and _contacts_equal(imp1, imp2)
 
 
 # --------------------------------------------------------------------------- intersections

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tryon.sim.collision.primitives import jit
+from tryon.sim.collision.threads import chunked
 
 LEAF_SIZE = 4
 
@@ -250,42 +251,92 @@ def _size(lo, hi, i) -> float:
 
 
 @jit
+def _descend(a, b, a_child, a_nlo, a_nhi, b_child, b_nlo, b_nhi, same, stack, sp):
+    """One step of the simultaneous descent from node pair (a, b): pushes the child pairs
+    to visit onto `stack` (grown as needed) and returns (stack, new sp, leaf pair?)."""
+    if sp + 3 > stack.shape[0]:
+        stack = _grow(stack)
+    a_leaf = a_child[a, 0] < 0
+    if same and a == b:
+        if not a_leaf:
+            l_ = a_child[a, 0]
+            r_ = a_child[a, 1]
+            stack[sp, 0] = l_
+            stack[sp, 1] = l_
+            stack[sp + 1, 0] = r_
+            stack[sp + 1, 1] = r_
+            stack[sp + 2, 0] = l_
+            stack[sp + 2, 1] = r_
+            return stack, sp + 3, False
+    elif not _overlap(a_nlo, a_nhi, a, b_nlo, b_nhi, b):
+        return stack, sp, False
+    b_leaf = b_child[b, 0] < 0
+    if a_leaf and b_leaf:
+        return stack, sp, True
+    if a_leaf or (not b_leaf and _size(a_nlo, a_nhi, a) < _size(b_nlo, b_nhi, b)):
+        stack[sp, 0] = a
+        stack[sp, 1] = b_child[b, 0]
+        stack[sp + 1, 0] = a
+        stack[sp + 1, 1] = b_child[b, 1]
+    else:
+        stack[sp, 0] = a_child[a, 0]
+        stack[sp, 1] = b
+        stack[sp + 1, 0] = a_child[a, 1]
+        stack[sp + 1, 1] = b
+    return stack, sp + 2, False
+
+
+@jit
+def overlap_roots(a_child, a_nlo, a_nhi, b_child, b_nlo, b_nhi, same, wanted):
+    """Node pairs [R,2] whose subtrees hold every overlapping pair once: the descent from
+    the roots, breadth first, until at least `wanted` pairs (or only leaf pairs) remain.
+    Independent tasks for `overlap_pairs`, the same for any number of threads."""
+    if a_child.shape[0] == 0 or b_child.shape[0] == 0:
+        return np.zeros((0, 2), np.int64)
+    level = np.zeros((1, 2), np.int64)
+    while level.shape[0] < wanted:
+        nxt = np.empty((3 * level.shape[0] + 3, 2), np.int64)
+        sp = 0
+        split = False
+        for q in range(level.shape[0]):
+            a = level[q, 0]
+            b = level[q, 1]
+            nxt, sp2, leaf = _descend(a, b, a_child, a_nlo, a_nhi, b_child, b_nlo, b_nhi, same, nxt, sp)
+            if leaf:
+                nxt[sp2, 0] = a
+                nxt[sp2, 1] = b
+                sp2 += 1
+            else:
+                split = True
+            sp = sp2
+        level = nxt[:sp].copy()
+        if not split:
+            break
+    return level
+
+
+@jit
 def overlap_pairs(a_order, a_child, a_first, a_count, a_nlo, a_nhi, a_lo, a_hi,
-                  b_order, b_child, b_first, b_count, b_nlo, b_nhi, b_lo, b_hi, same):
+                  b_order, b_child, b_first, b_count, b_nlo, b_nhi, b_lo, b_hi, same, roots):
     """All pairs (i, j) of primitives of trees A and B whose boxes overlap, by simultaneous
-    descent with an explicit stack. With same=True (B is A) each unordered pair i != j is
-    reported once."""
-    out = np.empty((max(16, 4 * (a_lo.shape[0] + b_lo.shape[0])), 2), np.int64)
+    descent with an explicit stack from the node pairs `roots` ([[0, 0]]: from the roots).
+    With same=True (B is A) each unordered pair i != j is reported once."""
+    out = np.empty((max(16, 4 * (a_lo.shape[0] + b_lo.shape[0]) // max(1, roots.shape[0])), 2), np.int64)
     k = 0
     if a_child.shape[0] == 0 or b_child.shape[0] == 0:
         return out[:0]
     stack = np.empty((256, 2), np.int64)
-    stack[0, 0] = 0
-    stack[0, 1] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        a = stack[sp, 0]
-        b = stack[sp, 1]
-        if sp + 3 > stack.shape[0]:
-            stack = _grow(stack)
-        a_leaf = a_child[a, 0] < 0
-        if same and a == b:
-            if not a_leaf:
-                l_ = a_child[a, 0]
-                r_ = a_child[a, 1]
-                stack[sp, 0] = l_
-                stack[sp, 1] = l_
-                stack[sp + 1, 0] = r_
-                stack[sp + 1, 1] = r_
-                stack[sp + 2, 0] = l_
-                stack[sp + 2, 1] = r_
-                sp += 3
+    for r in range(roots.shape[0]):
+        stack[0, 0] = roots[r, 0]
+        stack[0, 1] = roots[r, 1]
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            a = stack[sp, 0]
+            b = stack[sp, 1]
+            stack, sp, leaf = _descend(a, b, a_child, a_nlo, a_nhi, b_child, b_nlo, b_nhi, same, stack, sp)
+            if not leaf:
                 continue
-        elif not _overlap(a_nlo, a_nhi, a, b_nlo, b_nhi, b):
-            continue
-        b_leaf = b_child[b, 0] < 0
-        if a_leaf and b_leaf:
             if k + a_count[a] * b_count[b] > out.shape[0]:
                 out = _grow(out)
             for u in range(a_first[a], a_first[a] + a_count[a]):
@@ -299,18 +350,6 @@ def overlap_pairs(a_order, a_child, a_first, a_count, a_nlo, a_nhi, a_lo, a_hi,
                         out[k, 0] = i
                         out[k, 1] = j
                         k += 1
-            continue
-        if a_leaf or (not b_leaf and _size(a_nlo, a_nhi, a) < _size(b_nlo, b_nhi, b)):
-            stack[sp, 0] = a
-            stack[sp, 1] = b_child[b, 0]
-            stack[sp + 1, 0] = a
-            stack[sp + 1, 1] = b_child[b, 1]
-        else:
-            stack[sp, 0] = a_child[a, 0]
-            stack[sp, 1] = b
-            stack[sp + 1, 0] = a_child[a, 1]
-            stack[sp + 1, 1] = b
-        sp += 2
     return out[:k]
 
 
@@ -353,12 +392,19 @@ class BVH:
         return (self.order, self.child, self.first, self.count, self.node_lo, self.node_hi, self.lo, self.hi)
 
 
+# Subtree pairs a query is cut into (`overlap_roots`), handed out in chunks to the threads.
+QUERY_TASKS, TASKS_PER_CHUNK = 64, 4
+
+
 def overlapping_pairs(a: BVH, b: BVH | None = None) -> np.ndarray:
     """Pairs [K,2] (i in A, j in B) of primitives with overlapping boxes; b=None: A with
-    itself, each unordered pair once."""
-    if b is None:
-        return overlap_pairs(*a.arrays(), *a.arrays(), True)
-    return overlap_pairs(*a.arrays(), *b.arrays(), False)
+    itself, each unordered pair once. Subtrees are searched on numba's threads (`chunked`);
+    the pairs and their order do not depend on the number of threads."""
+    same = b is None
+    b = a if b is None else b
+    roots = overlap_roots(a.child, a.node_lo, a.node_hi, b.child, b.node_lo, b.node_hi, same, QUERY_TASKS)
+    parts = chunked(lambda part: overlap_pairs(*a.arrays(), *b.arrays(), same, part), roots, TASKS_PER_CHUNK)
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 # --------------------------------------------------------------------------- nearest face

@@ -17,7 +17,8 @@ from functools import partial
 import numpy as np
 from numba import njit
 
-jit = partial(njit, cache=True, error_model="numpy")
+# nogil: the collision drivers run on chunks of candidate pairs in threads (`parallel`)
+jit = partial(njit, cache=True, error_model="numpy", nogil=True)
 
 # barycentric tolerance of ARCSim's "inside" tests for proximity contacts
 INSIDE_TOL = 1e-6

@@ -43,6 +43,7 @@ from tryon.sim.collision.contacts import (
     check_thickness,
 )
 from tryon.sim.collision.geometry import obstacle_normals_near
+from tryon.sim.collision.threads import chunked
 from tryon.sim.collision.topology import face_tree, mesh_topology
 from tryon.sim.collision.primitives import (
     INSIDE_TOL,
@@ -171,6 +172,13 @@ def new_contacts(cap: int) -> tuple:
 
 
 def run_driver(driver, pairs: np.ndarray, *args) -> Contacts:
+    """Run a contact driver over candidate pairs: in chunks on the worker threads when
+    there are many (`chunked`), each chunk's contacts in pair order, so the result is the
+    same for any number of threads."""
+    return Contacts.concatenate(chunked(lambda part: _run_serial(driver, part, *args), pairs))
+
+
+def _run_serial(driver, pairs: np.ndarray, *args) -> Contacts:
     """Run a contact driver over candidate pairs, growing its buffers until all fit."""
     buf = new_contacts(len(pairs) // 8 + PER_PAIR)
     m, nxt = driver(pairs, 0, 0, buf, *args)
