@@ -110,11 +110,10 @@ def add_diagonal_blocks(blocks, diag_block, vertices, block_values):
                 blocks[dst, i, j] += block_values[q, i, j]
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(cache=True)
 def bsr_matvec(indptr, indices, blocks, x, out):
-    """out = A x for the block-CSR matrix (rows in parallel: the solver's hot loop)."""
     n = indptr.shape[0] - 1
-    for r in nb.prange(n):
+    for r in range(n):
         s0 = 0.0
         s1 = 0.0
         s2 = 0.0
@@ -131,22 +130,9 @@ def bsr_matvec(indptr, indices, blocks, x, out):
         out[r, 2] = s2
 
 
-# The PCG's vector operations run over vertices in parallel (numba threads, one per core
-# unless NUMBA_NUM_THREADS or numba.set_num_threads says otherwise). Sums are split in the
-# same chunks every time, so a run is reproducible for a given thread count; with one
-# thread they equal the serial loops bit for bit.
-@nb.njit(parallel=True, cache=True)
-def _block_inverses(blocks, diag_block):
-    n = diag_block.shape[0]
-    pinv = np.zeros((n, 3, 3))
-    for i in nb.prange(n):
-        pinv[i] = np.linalg.inv(blocks[diag_block[i]])
-    return pinv
-
-
-@nb.njit(parallel=True, cache=True)
+@nb.njit(cache=True)
 def _apply_block_precond(pinv, free, r, z):
-    for i in nb.prange(r.shape[0]):
+    for i in range(r.shape[0]):
         if free[i]:
             for a in range(3):
                 z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2]
@@ -156,37 +142,12 @@ def _apply_block_precond(pinv, free, r, z):
             z[i, 2] = 0.0
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(cache=True)
 def _dot(a, b):
     s = 0.0
-    for i in nb.prange(a.shape[0]):
+    for i in range(a.shape[0]):
         s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
     return s
-
-
-@nb.njit(parallel=True, cache=True)
-def _filter(free, v):
-    for i in nb.prange(v.shape[0]):
-        if not free[i]:
-            v[i, 0] = 0.0
-            v[i, 1] = 0.0
-            v[i, 2] = 0.0
-
-
-@nb.njit(parallel=True, cache=True)
-def _step_solution(x, r, p, ap, alpha):
-    """x += alpha p; r -= alpha A p."""
-    for i in nb.prange(x.shape[0]):
-        for a in range(3):
-            x[i, a] += alpha * p[i, a]
-            r[i, a] -= alpha * ap[i, a]
-
-
-@nb.njit(parallel=True, cache=True)
-def _next_direction(p, z, beta):
-    for i in nb.prange(p.shape[0]):
-        for a in range(3):
-            p[i, a] = z[i, a] + beta * p[i, a]
 
 
 @nb.njit(cache=True)
@@ -195,14 +156,19 @@ def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter)
     values of x on constrained (not free) vertices. Block-Jacobi preconditioner.
     Returns the iteration count; convergence when |r| <= tol * |b_free|."""
     n = b.shape[0]
-    pinv = _block_inverses(blocks, diag_block)
+    pinv = np.zeros((n, 3, 3))
+    for i in range(n):
+        pinv[i] = np.linalg.inv(blocks[diag_block[i]])
     ax = np.zeros((n, 3))
     bsr_matvec(indptr, indices, blocks, x, ax)
-    r = b - ax
-    _filter(free, r)
-    bf = b.copy()
-    _filter(free, bf)
-    bnorm = np.sqrt(_dot(bf, bf))
+    r = np.zeros((n, 3))
+    bnorm = 0.0
+    for i in range(n):
+        if free[i]:
+            for a in range(3):
+                r[i, a] = b[i, a] - ax[i, a]
+                bnorm += b[i, a] * b[i, a]
+    bnorm = np.sqrt(bnorm)
     if bnorm == 0.0:
         bnorm = 1.0
     z = np.zeros((n, 3))
@@ -215,14 +181,23 @@ def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter)
         if np.sqrt(_dot(r, r)) <= tol * bnorm:
             break
         bsr_matvec(indptr, indices, blocks, p, ap)
-        _filter(free, ap)
+        for i in range(n):
+            if not free[i]:
+                ap[i, 0] = 0.0
+                ap[i, 1] = 0.0
+                ap[i, 2] = 0.0
         alpha = rz / _dot(p, ap)
-        _step_solution(x, r, p, ap, alpha)
+        for i in range(n):
+            for a in range(3):
+                x[i, a] += alpha * p[i, a]
+                r[i, a] -= alpha * ap[i, a]
         _apply_block_precond(pinv, free, r, z)
         rz_new = _dot(r, z)
         beta = rz_new / rz
         rz = rz_new
-        _next_direction(p, z, beta)
+        for i in range(n):
+            for a in range(3):
+                p[i, a] = z[i, a] + beta * p[i, a]
         it += 1
     return it
 
