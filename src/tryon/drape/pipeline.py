@@ -344,7 +344,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
     t_end = morph_time + request.max_settle_time
     out_frames, out_times = [state.x.numpy().copy()], [0.0]
-    stats = {"steps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [], "max_step_s": 0.0}
+    stats = {"steps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [], "max_step_s": 0.0,
+             "max_speed": 0.0}  # the fastest vertex after any accepted step (m/s); flung steps are in speed_recoveries
     totals = StepStats()
     stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
                                                 f"the dressed {garment.name}")
@@ -413,6 +414,7 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
             out_frames.append(state.x.numpy().copy())
             out_times.append(state.t)
         speed = float(speeds.max())
+        stats["max_speed"] = max(stats["max_speed"], speed)
         window.append((state.t, state.x.numpy().copy()))
         drift = float(np.linalg.norm(window[-1][1] - window[0][1], axis=1).max()) / (window[-1][0] - window[0][0]) \
             if len(window) == REST_WINDOW + 1 else float("inf")
