@@ -195,6 +195,9 @@ def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s:
         "detail_carried": hier.detail is not None,
         "obstacle_proxies": hier.obstacle_proxies,
         "boundaries": errors, "resubmitted": par["resubmitted"],
+        # segments whose recovered start crossed itself, run again from the previous one's
+        # end: their boundaries are exact and left out of the curvature and jump means
+        "restarted_segments": len(par["restarted_segments"]), "intersections": r.summary["intersections"],
         "max_deviation_from_serial_m": float(np.abs(r.positions[-1] - states[-1]).max()),
     }
     return record, r
@@ -275,7 +278,9 @@ def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, p
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
     segs = result.segments
-    k = next(i for i, s in enumerate(segs) if s.x_upsampled is not None)
+    k = next((i for i, s in enumerate(segs) if s.x_upsampled is not None), None)
+    if k is None:  # every later segment was restarted from its predecessor: no boundary to show
+        return
     seg = segs[k]
     steps, own = plain_join(hier, segs)
     plain, joined = dict(zip(steps, own)), dict(zip(steps, result.positions))

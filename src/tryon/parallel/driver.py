@@ -176,6 +176,8 @@ class _Driver:
         self.on_progress = on_progress
         self.done: dict[int, SegmentResult] = {}
         self.launched: set[int] = set()
+        self.to_restart: dict[int, int] = {}  # segment -> crossings in its recovered start (see _finish)
+        self.restarted: dict[int, int] = {}
         self.probe: dict | None = None
         loaded = self.ckpt.load() if resume else None
         trajectory = None
@@ -228,6 +230,7 @@ class _Driver:
                 stepped = self._advance_coarse()
                 self._decide_cut(executor)
                 self._launch_ready(executor)
+                self._launch_restarts(executor)
                 for res in executor.poll(self.coarse.position, timeout=0.0 if stepped else 0.05):
                     self._finish(res)
         finally:
@@ -273,7 +276,25 @@ class _Driver:
             executor.submit(SegmentSpec(j, start, end, self.N, self.per_frame, coarse, self.opts.recovery, overlap))
             self.launched.add(j)
 
+    def _launch_restarts(self, executor) -> None:
+        """Segments whose recovered start crossed itself or an obstacle run again from the
+        state the previous segment arrived at, once it has finished: the joined run then
+        has no crossing, as a serial run has none, at the cost of that segment's parallelism."""
+        cuts = self.partitioner.cuts
+        for j in sorted(self.to_restart):
+            prev = self.done.get(j - 1)
+            if prev is None:
+                continue
+            end = cuts[j + 1] if j + 1 < len(cuts) else None
+            overlap = min(self.overlap, cuts[j + 2] - cuts[j + 1]) if j + 2 < len(cuts) else self.overlap
+            executor.submit(SegmentSpec(j, cuts[j], end, self.N, self.per_frame, None, self.opts.recovery, overlap,
+                                        exact=(prev.x_end, prev.v_end)))
+            self.restarted[j] = self.to_restart.pop(j)
+
     def _finish(self, res: SegmentResult) -> None:
+        if res.start_crossings:
+            self.to_restart[res.index] = res.start_crossings
+            return
         self.done[res.index] = res
         self.ckpt.save_segment(res)
 
@@ -355,6 +376,7 @@ def _summary(hier: Hierarchy, opts: ParallelOptions, driver: _Driver, executor, 
         "segment_seconds": [float(sum(s.step_seconds) + s.setup_seconds) for s in segments],
         "attempts": {str(k): v for k, v in sorted(executor.table.attempts.items())},
         "resubmitted": getattr(executor, "resubmitted", 0), "resumed_segments": driver.resumed_segments,
+        "restarted_segments": {str(k): {"start_crossings": v} for k, v in sorted(driver.restarted.items())},
         "ray_startup_s": startup,
     }
     return {

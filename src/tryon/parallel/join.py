@@ -10,7 +10,7 @@ both are simulated states of the same cloth at the same time, and the difference
 them is spread over the overlap instead of shown in one frame. After the overlap the
 frames are segment j's own. A blended frame that puts the cloth into an obstacle has
 those vertices moved out (`recovery.push_outside`); one whose layers cross each other
-is replaced by segment j's own frame (counted in `CrossfadeReport.replaced`).
+or an obstacle is replaced by segment j's own frame (counted in `CrossfadeReport.replaced`).
 """
 
 from __future__ import annotations
@@ -48,11 +48,12 @@ def crossfade_weight(step: int, boundary: int, span: int) -> float:
 
 
 def _blend(hier: Hierarchy, earlier: np.ndarray, later: np.ndarray, w: float, t: float) -> tuple[np.ndarray, bool]:
-    """(frame, replaced): the blend, made clear of obstacles, or `later` if it self-crosses."""
+    """(frame, replaced): the blend, made clear of obstacles, or `later` (a simulated
+    frame, free of crossings) if the blend still crosses itself or an obstacle."""
     x = (1.0 - w) * earlier + w * later
     if obstacle_crossings(hier, x, t):
         x = push_outside(hier, x, t)
-    if len(self_intersecting_vertices(hier, x)) and not len(self_intersecting_vertices(hier, later)):
+    if len(self_intersecting_vertices(hier, x)) or obstacle_crossings(hier, x, t):
         return later, True
     return x, False
 

@@ -18,12 +18,14 @@ from collections.abc import Generator
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from tryon.errors import SimulationError
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.parallel.recovery import RecoveryOptions, recover_details
+from tryon.parallel.recovery import RecoveryOptions, obstacle_crossings, recover_details, self_intersecting_vertices
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import steps
+from tryon.sim.model import ClothState
 
 FAULT_ENV = "TRYON_PARALLEL_FAULT"  # chaos testing: "SEGMENT:STEP:MARKER" kills that segment's worker once
 CoarsePair = tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -34,7 +36,9 @@ class SegmentSpec:
     """Segment `index` covers fine steps start..end (end None: decided later) and runs
     `overlap` steps past its end (not past the run's last step) for the join's cross-fade.
     `coarse` holds the coarse (x, v) at the start and one fine step later (None for
-    segment 0)."""
+    segment 0). `exact`, when given, is the fine (x, v) at the start that the previous
+    segment arrived at: the segment starts from it without recovery (a restart, see
+    `SegmentResult.start_crossings`)."""
 
     index: int
     start: int
@@ -44,6 +48,7 @@ class SegmentSpec:
     coarse: CoarsePair | None = None
     recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
     overlap: int = 0
+    exact: tuple[np.ndarray, np.ndarray] | None = None
 
     def stop(self, end: int) -> int:
         """The last step this segment simulates when its boundary is `end`."""
@@ -78,6 +83,11 @@ class SegmentResult:
     setup_seconds: float = 0.0
     retried_steps: int = 0
     fail_safe_used: bool = False
+    # crossings (cloth through cloth or obstacle) in the recovered start state; such a
+    # segment stops at once (no frames) and the driver runs it again from the previous
+    # segment's state at the boundary (`restarted`), since no step can undo a crossing
+    start_crossings: int = 0
+    restarted: bool = False
 
     @property
     def own_steps(self) -> list[int]:
@@ -95,6 +105,7 @@ class SegmentResult:
                                              float(self.recovery.get("converged", False)), self.recovery.get("seconds", 0.0)])}
         if self.x_upsampled is not None:
             out["x_upsampled"] = self.x_upsampled
+        out["restart"] = np.array([self.start_crossings, int(self.restarted)])
         return out
 
     @classmethod
@@ -103,9 +114,10 @@ class SegmentResult:
         it, limit, conv, sec = a["recovery_scalars"].tolist()
         recovery = {"iterations": int(it), "limit": int(limit), "converged": bool(conv), "seconds": float(sec),
                     "changes": a["recovery_changes"].tolist(), "failed": ""}
+        crossings, restarted = (int(v) for v in a["restart"]) if "restart" in a else (0, 0)
         return cls(index, start, end, a["frame_steps"].tolist(), a["frames"], a["x_end"], a["v_end"],
                    a["step_seconds"].tolist(), recovery, a["x_start"], a.get("x_upsampled"), pid, "",
-                   float(a["setup_seconds"]), retried, bool(fail_safe))
+                   float(a["setup_seconds"]), retried, bool(fail_safe), crossings, bool(restarted))
 
 
 def _injected_fault(index: int, step: int) -> None:
@@ -132,11 +144,15 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
     solver = ImplicitEulerSolver(fine.model, fine.options)
     pid, host = os.getpid(), socket.gethostname()
     t0 = spec.start * fine.dt
-    if spec.coarse is None:
+    exact_start = {"iterations": 0, "limit": 0, "converged": True, "seconds": 0.0, "changes": [], "failed": ""}
+    crossings = 0
+    if spec.exact is not None:
+        x0, v0 = spec.exact
+        state, x_up, rec = ClothState(torch.from_numpy(x0.copy()), torch.from_numpy(v0.copy()), t0), None, exact_start
+    elif spec.coarse is None:
         if spec.start != 0:
             raise SimulationError(f"segment {spec.index} starts at step {spec.start} but has no coarse state")
-        state, x_up, rec = fine.model.initial_state(), None, {"iterations": 0, "limit": 0, "converged": True,
-                                                            "seconds": 0.0, "changes": [], "failed": ""}
+        state, x_up, rec = fine.model.initial_state(), None, exact_start
     else:
         start_pair, next_pair = spec.coarse
         state, report = recover_details(solver, hier, start_pair, next_pair, t0, fine.dt, spec.recovery)
@@ -144,11 +160,17 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
         rec = {"iterations": report.iterations, "limit": report.limit, "converged": report.converged,
                "seconds": report.seconds, "changes": report.changes, "failed": report.failed,
                "stopped": report.stopped, "detail_kept": report.detail_kept}
+        crossings = start_crossings(hier, state.x.numpy(), t0)
     x_start = state.x.numpy().copy()
     setup = time.perf_counter() - tic
     end = spec.end
     received = yield Progress(spec.index, spec.start, 0.0, pid, host, "start")
     end = received if received is not None else end
+    n = fine.model.num_vertices
+    if crossings:  # no step can undo a crossing: the driver restarts this segment exactly
+        return SegmentResult(spec.index, spec.start, spec.start if end is None else int(end), [], np.zeros((0, n, 3)),
+                             x_start, state.v.numpy().copy(), [], rec, x_start, x_up, pid, host, setup,
+                             start_crossings=crossings)
     k = spec.start
     frames, frame_steps, seconds = [], [], []
     retried, fail_safe = 0, False
@@ -173,10 +195,15 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
             x_end, v_end = state.x.numpy().copy(), state.v.numpy().copy()
     if x_end is None:  # a segment with no steps of its own
         x_end, v_end = state.x.numpy().copy(), state.v.numpy().copy()
-    n = fine.model.num_vertices
     return SegmentResult(spec.index, spec.start, int(end), frame_steps,
                          np.stack(frames) if frames else np.zeros((0, n, 3)), x_end, v_end, seconds, rec, x_start,
-                         x_up, pid, host, setup, retried, fail_safe)
+                         x_up, pid, host, setup, retried, fail_safe, restarted=spec.exact is not None)
+
+
+def start_crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
+    """Vertices of the fine cloth passing through itself, plus cloth-obstacle crossings,
+    in a segment's start state `x` at time `t`."""
+    return len(self_intersecting_vertices(hier, x)) + obstacle_crossings(hier, x, t)
 
 
 def run_segment_to_end(hier: Hierarchy, spec: SegmentSpec) -> SegmentResult:
