@@ -178,7 +178,8 @@ def test_every_garment_drapes_to_rest_and_is_written_out(garment, size, tmp_path
         assert (tmp_path / name).stat().st_size > 1000, name
     assert json.loads((tmp_path / "report.json").read_text())["settled"] == rep["settled"]
     assert rep["settled"] and rep["final_rest_speed"] < req.rest_speed, (rep["final_rest_speed"], rep["final_max_speed"])
-    assert rep["final_max_speed"] <= rep["max_speed"] < 2.0  # nothing flung on the way (the morph moves cloth at ~0.5 m/s)
+    # nothing flung on the way (the morph moves cloth at up to ~1 m/s; a flung step, redone, is > 5 m/s)
+    assert rep["final_max_speed"] <= rep["max_speed"] < 3.0
     if garment == "trousers":
         pm = drafting_measurements(result.person.shape)
         z = result.x[:, 2]
