@@ -4,6 +4,7 @@ instead of joining that cluster."""
 
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -27,7 +28,7 @@ SCRIPT = textwrap.dedent("""
         tic = time.perf_counter()
         r = simulate_time_parallel(example_scene("sphere-drop", 13, duration=0.3), opts, progress=False)
         out[name] = {"s": time.perf_counter() - tic, "frames": len(r.times), "intersections": r.summary["intersections"],
-                     "segments": len(r.segments)}
+                     "segments": len(r.segments), "ray": r.summary["parallel"]["ray"]}
     print("RESULT " + json.dumps(out))
 """)
 
@@ -51,14 +52,15 @@ def _wait_for(port: int, timeout: float = 90.0) -> None:
 
 @pytest.fixture
 def cluster():
-    """A Ray head on loopback with 2 CPUs, as a user starts one; stopped with its process."""
+    """A Ray head on loopback with 3 CPUs (a run's own Ray has as many as its workers), as a
+    user starts one; stopped with its process."""
     port = _free_port()
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
     env.pop("RAY_ADDRESS", None)
     temp = tempfile.mkdtemp(prefix="rc", dir="/tmp")  # short: Ray's socket paths live under it
     ray_bin = Path(sys.executable).with_name("ray")
     head = subprocess.Popen([str(ray_bin), "start", "--head", "--block", "--node-ip-address", "127.0.0.1",
-                             "--port", str(port), "--num-cpus", "2", "--include-dashboard", "false",
+                             "--port", str(port), "--num-cpus", "3", "--include-dashboard", "false",
                              "--disable-usage-stats", "--temp-dir", temp],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -70,6 +72,7 @@ def cluster():
             head.wait(timeout=60)
         except subprocess.TimeoutExpired:
             head.kill()
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 def test_a_run_uses_a_cluster_started_with_ray_start_and_a_local_run_keeps_its_own(cluster):
@@ -80,3 +83,6 @@ def test_a_run_uses_a_cluster_started_with_ray_start_and_a_local_run_keeps_its_o
     for name in ("cluster", "own"):
         assert result[name]["frames"] == 9 and result[name]["segments"] == 2, result
         assert result[name]["intersections"] == 0, result
+    cluster, own = result["cluster"]["ray"], result["own"]["ray"]
+    assert cluster["address"].endswith(address.split(":")[1]) and cluster["cpus"] == 3 and not cluster["own"], result
+    assert own["address"] != cluster["address"] and own["cpus"] == 2 and own["own"], result

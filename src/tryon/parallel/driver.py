@@ -18,6 +18,7 @@ resumed with `resume=True` keeps its finished segments and re-runs only the othe
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 import time
 from collections.abc import Callable
@@ -43,6 +44,7 @@ from tryon.sim.runner import RunResult, ScenePicture, publish_run
 from tryon.sim.scene import Scene
 
 MODES = ("ray", "local")
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -177,7 +179,6 @@ class _Driver:
         self.done: dict[int, SegmentResult] = {}
         self.launched: set[int] = set()
         self.to_restart: dict[int, int] = {}  # segment -> crossings in its recovered start (see _finish)
-        self.restarted: dict[int, int] = {}
         self.probe: dict | None = None
         loaded = self.ckpt.load() if resume else None
         trajectory = None
@@ -287,9 +288,11 @@ class _Driver:
                 continue
             end = cuts[j + 1] if j + 1 < len(cuts) else None
             overlap = min(self.overlap, cuts[j + 2] - cuts[j + 1]) if j + 2 < len(cuts) else self.overlap
+            crossings = self.to_restart.pop(j)
+            log.warning("time-parallel segment %d starts through itself or the body (%d crossings after recovery): "
+                        "running it from segment %d's state at step %d", j, crossings, j - 1, cuts[j])
             executor.submit(SegmentSpec(j, cuts[j], end, self.N, self.per_frame, None, self.opts.recovery, overlap,
-                                        exact=(prev.x_end, prev.v_end)))
-            self.restarted[j] = self.to_restart.pop(j)
+                                        exact=(prev.x_end, prev.v_end), refused_crossings=crossings))
 
     def _finish(self, res: SegmentResult) -> None:
         if res.start_crossings:
@@ -376,8 +379,8 @@ def _summary(hier: Hierarchy, opts: ParallelOptions, driver: _Driver, executor, 
         "segment_seconds": [float(sum(s.step_seconds) + s.setup_seconds) for s in segments],
         "attempts": {str(k): v for k, v in sorted(executor.table.attempts.items())},
         "resubmitted": getattr(executor, "resubmitted", 0), "resumed_segments": driver.resumed_segments,
-        "restarted_segments": {str(k): {"start_crossings": v} for k, v in sorted(driver.restarted.items())},
-        "ray_startup_s": startup,
+        "restarted_segments": {str(s.index): {"start_crossings": s.restarted} for s in segments if s.restarted},
+        "ray_startup_s": startup, "ray": getattr(executor, "cluster", None),
     }
     return {
         "scene": fine.name, "vertices": m.num_vertices, "faces": int(m.faces.shape[0]), "fabric": m.fabric.name,

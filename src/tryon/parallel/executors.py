@@ -36,7 +36,7 @@ class ProgressTable:
     listener: Callable[[Progress], None] | None = None
 
     def add(self, p: Progress) -> None:
-        if p.phase == "start":
+        if p.phase == "start":  # a restart from the predecessor's state is not another attempt
             self.attempts[p.index] = self.attempts.get(p.index, 0) + 1
         else:
             self.fine_seconds += p.seconds
@@ -264,6 +264,9 @@ class RayExecutor:
         self.max_attempts = max_attempts
         self.resubmitted = 0
         self._hier_ref = ray.put(hier)
+        # which Ray the run uses: its own, or the cluster it joined (the summary says so)
+        self.cluster = {"address": ray.get_runtime_context().gcs_address, "own": self.started_ray and address in (None, "local"),
+                        "cpus": float(ray.cluster_resources().get("CPU", 0.0))}
         self._board = ray.remote(num_cpus=0)(_Board).remote()
         self._task = ray.remote(num_cpus=1, max_retries=task_retries)(_segment_task)
         self._pending: dict = {}  # ObjectRef -> (spec, submissions)

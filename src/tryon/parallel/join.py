@@ -49,11 +49,14 @@ def crossfade_weight(step: int, boundary: int, span: int) -> float:
 
 def _blend(hier: Hierarchy, earlier: np.ndarray, later: np.ndarray, w: float, t: float) -> tuple[np.ndarray, bool]:
     """(frame, replaced): the blend, made clear of obstacles, or `later` (a simulated
-    frame, free of crossings) if the blend still crosses itself or an obstacle."""
+    frame) if the blend crosses itself or an obstacle more than `later` does."""
     x = (1.0 - w) * earlier + w * later
-    if obstacle_crossings(hier, x, t):
+    through_obstacle = obstacle_crossings(hier, x, t)
+    if through_obstacle:
         x = push_outside(hier, x, t)
-    if len(self_intersecting_vertices(hier, x)) or obstacle_crossings(hier, x, t):
+        through_obstacle = obstacle_crossings(hier, x, t)
+    crossings = len(self_intersecting_vertices(hier, x)) + through_obstacle
+    if crossings and crossings > len(self_intersecting_vertices(hier, later)) + obstacle_crossings(hier, later, t):
         return later, True
     return x, False
 

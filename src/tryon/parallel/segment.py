@@ -49,6 +49,7 @@ class SegmentSpec:
     recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
     overlap: int = 0
     exact: tuple[np.ndarray, np.ndarray] | None = None
+    refused_crossings: int = 0  # with `exact`: the crossings of the recovered start it replaces
 
     def stop(self, end: int) -> int:
         """The last step this segment simulates when its boundary is `end`."""
@@ -62,7 +63,7 @@ class Progress:
     seconds: float  # wall seconds of the last fine step (0 for the start report)
     pid: int
     host: str
-    phase: str = "step"  # "start" after recovery, then "step"
+    phase: str = "step"  # "start" after recovery ("restart" from a predecessor's state), then "step"
 
 
 @dataclass
@@ -83,11 +84,12 @@ class SegmentResult:
     setup_seconds: float = 0.0
     retried_steps: int = 0
     fail_safe_used: bool = False
-    # crossings (cloth through cloth or obstacle) in the recovered start state; such a
-    # segment stops at once (no frames) and the driver runs it again from the previous
-    # segment's state at the boundary (`restarted`), since no step can undo a crossing
+    # crossings (cloth through cloth or obstacle) in the recovered start state beyond those
+    # of the scene's initial state; such a segment stops at once (no frames) and the driver
+    # runs it again from the previous segment's state at the boundary, since no step can
+    # undo a crossing; `restarted` is then the refused start's crossings (0: not restarted)
     start_crossings: int = 0
-    restarted: bool = False
+    restarted: int = 0
 
     @property
     def own_steps(self) -> list[int]:
@@ -105,7 +107,7 @@ class SegmentResult:
                                              float(self.recovery.get("converged", False)), self.recovery.get("seconds", 0.0)])}
         if self.x_upsampled is not None:
             out["x_upsampled"] = self.x_upsampled
-        out["restart"] = np.array([self.start_crossings, int(self.restarted)])
+        out["restart"] = np.array([self.start_crossings, self.restarted])
         return out
 
     @classmethod
@@ -117,7 +119,7 @@ class SegmentResult:
         crossings, restarted = (int(v) for v in a["restart"]) if "restart" in a else (0, 0)
         return cls(index, start, end, a["frame_steps"].tolist(), a["frames"], a["x_end"], a["v_end"],
                    a["step_seconds"].tolist(), recovery, a["x_start"], a.get("x_upsampled"), pid, "",
-                   float(a["setup_seconds"]), retried, bool(fail_safe), crossings, bool(restarted))
+                   float(a["setup_seconds"]), retried, bool(fail_safe), crossings, restarted)
 
 
 def _injected_fault(index: int, step: int) -> None:
@@ -161,10 +163,12 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
                "seconds": report.seconds, "changes": report.changes, "failed": report.failed,
                "stopped": report.stopped, "detail_kept": report.detail_kept}
         crossings = start_crossings(hier, state.x.numpy(), t0)
+        if crossings and crossings <= start_crossings(hier, fine.model.initial_state().x.numpy(), 0.0):
+            crossings = 0  # the scene starts with as many: a serial run carries them too
     x_start = state.x.numpy().copy()
     setup = time.perf_counter() - tic
     end = spec.end
-    received = yield Progress(spec.index, spec.start, 0.0, pid, host, "start")
+    received = yield Progress(spec.index, spec.start, 0.0, pid, host, "restart" if spec.exact is not None else "start")
     end = received if received is not None else end
     n = fine.model.num_vertices
     if crossings:  # no step can undo a crossing: the driver restarts this segment exactly
@@ -197,7 +201,7 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
         x_end, v_end = state.x.numpy().copy(), state.v.numpy().copy()
     return SegmentResult(spec.index, spec.start, int(end), frame_steps,
                          np.stack(frames) if frames else np.zeros((0, n, 3)), x_end, v_end, seconds, rec, x_start,
-                         x_up, pid, host, setup, retried, fail_safe, restarted=spec.exact is not None)
+                         x_up, pid, host, setup, retried, fail_safe, restarted=spec.refused_crossings)
 
 
 def start_crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
