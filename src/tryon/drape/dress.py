@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-DRESS_VERSION = 21
+DRESS_VERSION = 22
 
 
 # --------------------------------------------------------------------------- tubes
@@ -632,7 +632,6 @@ def stitch_gap(x: np.ndarray, stitches: np.ndarray) -> float:
 SEW_TIGHTENING = 1.06  # the stitch stiffness's growth per sewing step
 
 
-CLOSED_RELAX = {"dt": 0.02, "max_steps": 20}  # a placement welded at once: 0.4 s of relaxation in 20 steps (`relax`)
 RELAX_WINDOW = 5      # steps: the relaxation's minimum length, and the span over which it must keep slowing down
 RELAX_SLOWING = 0.9  # ... by this factor at least, or the welding strain is spent
 
@@ -677,10 +676,10 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
     `max_steps`. A placement welded at once (skirts, trousers) carries the placement's
     whole strain and relaxes to `rest_speed` or `max_steps`: stopped when it no longer
     slowed, women's XXL trousers left the relaxation at 0.58 m/s and did not settle in the
-    drape. The caller relaxes those with twice the step (`CLOSED_RELAX`: the same 0.4 s in
-    half the steps, and implicit Euler's larger step damps the placement's swing faster:
-    made-to-measure denim trousers for a 175 cm, 138 kg woman left it at 0.15 m/s instead
-    of 0.25 and then draped in 96 steps instead of 133, 46 s instead of 63)."""
+    drape. (Relaxing those with twice the step, 20 steps of 20 ms, left made-to-measure
+    denim trousers for a 175 cm, 138 kg woman at 0.15 m/s instead of 0.25, and that drape
+    took 46 s instead of 63; but the knit pair for the same body then started with its
+    crotch pressed through itself and stopped in the fail-safe.)"""
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
@@ -745,8 +744,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     # a placement welded at once relaxes from its placement strain; a sewn one from the
     # strain that welding a seam a few millimetres open leaves (a coarse neckline welded
     # 6 mm apart flung the drape's first step)
-    steps = CLOSED_RELAX if closed else {"until_slowing_stops": True}
-    pos, relaxed = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name, **steps)
+    pos, relaxed = relax(pos, faces, uv, corner_uv, body, fabric, pattern.name, until_slowing_stops=not closed)
     stats.update({"relax_steps": relaxed["relax_steps"], "relax_final_speed": relaxed["relax_final_speed"],
                   "sew_s": stats["sew_s"] + relaxed["sew_s"]})
     owner = mesh.panel_of_vertex[mesh.faces[:, 0]]
