@@ -36,7 +36,7 @@ class ProgressTable:
     listener: Callable[[Progress], None] | None = None
 
     def add(self, p: Progress) -> None:
-        if p.phase in ("start", "restart"):  # every start counts (restarts are also in the summary's restarted_segments)
+        if p.phase == "start":  # restarts count too (the summary also lists them in restarted_segments)
             self.attempts[p.index] = self.attempts.get(p.index, 0) + 1
         else:
             self.fine_seconds += p.seconds

@@ -21,7 +21,7 @@ import numpy as np
 
 from tryon.errors import SimulationError
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.parallel.recovery import obstacle_crossings, push_outside, self_intersecting_vertices
+from tryon.parallel.recovery import crossings, obstacle_crossings, push_outside, self_intersecting_vertices
 from tryon.parallel.segment import SegmentResult
 
 
@@ -55,8 +55,8 @@ def _blend(hier: Hierarchy, earlier: np.ndarray, later: np.ndarray, w: float, t:
     if through_obstacle:
         x = push_outside(hier, x, t)
         through_obstacle = obstacle_crossings(hier, x, t)
-    crossings = len(self_intersecting_vertices(hier, x)) + through_obstacle
-    if crossings and crossings > len(self_intersecting_vertices(hier, later)) + obstacle_crossings(hier, later, t):
+    blended = len(self_intersecting_vertices(hier, x)) + through_obstacle
+    if blended and blended > crossings(hier, later, t):
         return later, True
     return x, False
 

@@ -152,6 +152,12 @@ def self_intersecting_vertices(hier: Hierarchy, x: np.ndarray) -> np.ndarray:
     return np.unique(np.concatenate([edges[pairs[:, 0]].ravel(), faces[pairs[:, 1]].ravel()]))
 
 
+def crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
+    """Fine vertices passing through the cloth (`self_intersecting_vertices`) plus
+    cloth-obstacle crossings (`obstacle_crossings`) of the fine cloth at `x`, time `t`."""
+    return len(self_intersecting_vertices(hier, x)) + obstacle_crossings(hier, x, t)
+
+
 def _with_one_ring(faces: np.ndarray, vertices: np.ndarray, n: int) -> np.ndarray:
     mark = np.zeros(n, bool)
     mark[vertices] = True

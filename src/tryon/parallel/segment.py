@@ -22,7 +22,7 @@ import torch
 
 from tryon.errors import SimulationError
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.parallel.recovery import RecoveryOptions, obstacle_crossings, recover_details, self_intersecting_vertices
+from tryon.parallel.recovery import RecoveryOptions, crossings as start_crossings, recover_details
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import steps
 from tryon.sim.model import ClothState
@@ -63,7 +63,7 @@ class Progress:
     seconds: float  # wall seconds of the last fine step (0 for the start report)
     pid: int
     host: str
-    phase: str = "step"  # "start" after recovery ("restart" from a predecessor's state), then "step"
+    phase: str = "step"  # "start" after recovery (or a restart's exact start), then "step"
 
 
 @dataclass
@@ -168,7 +168,7 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
     x_start = state.x.numpy().copy()
     setup = time.perf_counter() - tic
     end = spec.end
-    received = yield Progress(spec.index, spec.start, 0.0, pid, host, "restart" if spec.exact is not None else "start")
+    received = yield Progress(spec.index, spec.start, 0.0, pid, host, "start")
     end = received if received is not None else end
     n = fine.model.num_vertices
     if crossings:  # no step can undo a crossing: the driver restarts this segment exactly
@@ -202,12 +202,6 @@ def segment_run(hier: Hierarchy, spec: SegmentSpec) -> Generator[Progress, int |
     return SegmentResult(spec.index, spec.start, int(end), frame_steps,
                          np.stack(frames) if frames else np.zeros((0, n, 3)), x_end, v_end, seconds, rec, x_start,
                          x_up, pid, host, setup, retried, fail_safe, restarted=spec.refused_crossings)
-
-
-def start_crossings(hier: Hierarchy, x: np.ndarray, t: float) -> int:
-    """Vertices of the fine cloth passing through itself, plus cloth-obstacle crossings,
-    in a segment's start state `x` at time `t`."""
-    return len(self_intersecting_vertices(hier, x)) + obstacle_crossings(hier, x, t)
 
 
 def run_segment_to_end(hier: Hierarchy, spec: SegmentSpec) -> SegmentResult:
