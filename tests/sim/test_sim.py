@@ -1,12 +1,13 @@
 """Dynamics: integrator exactness, pins and handles, energy behaviour, solvers, friction."""
 
+import numba
 import numpy as np
 import pytest
 import torch
 
 from tryon.fabric import load_fabric
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
-from tryon.sim.linear import HAVE_CHOLMOD
+from tryon.sim.linear import HAVE_CHOLMOD, BlockPattern, filtered_pcg
 from tryon.sim.mesh import grid_mesh
 from tryon.sim.model import ClothModel, CollisionSettings, PinGroup, Wind
 from tryon.sim.obstacles import Motion, plane
@@ -80,6 +81,36 @@ def test_linear_solvers_agree(kind):
     a, _ = ref.step(s, 0.02)
     b, _ = other.step(s, 0.02)
     assert torch.allclose(a.x, b.x, atol=1e-9)
+
+
+def test_pcg_is_the_same_on_one_thread_and_on_two():
+    """The solver's loops run on numba's threads; its chunked dot products keep the
+    iterates bit-identical whatever the thread count (runs in one process, on 2 threads
+    where numba has them)."""
+    scene = example_scene("hanging", 24, dt=0.02)
+    solver = ImplicitEulerSolver(scene.model, StepOptions(linear_solver="pcg"))
+    state = scene.model.initial_state()
+    obstacles = scene.model.obstacles.vertices_at(0.0)
+    system = solver.assemble(state, 0.02, None, None, obstacles, obstacles)
+    blocks, rhs = system.A, system.rhs
+    pattern: BlockPattern = solver.pattern
+    free = ~solver.pinned_mask
+    results = []
+    before = numba.get_num_threads()
+    try:
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            x = np.zeros((pattern.n, 3))
+            iterations = filtered_pcg(pattern.indptr, pattern.indices, blocks, pattern.diag_block, rhs, x, free, 1e-10, 5000)
+            results.append((iterations, x))
+    finally:
+        numba.set_num_threads(before)
+    assert 0 < results[0][0] < 5000
+    for iterations, x in results[1:]:
+        assert iterations == results[0][0] and np.array_equal(x, results[0][1])
+    A = pattern.to_csc(blocks).toarray().reshape(pattern.n, 3, pattern.n, 3)
+    residual = np.einsum("iajb,jb->ia", A, results[0][1])[free] - rhs[free]
+    assert np.linalg.norm(residual) <= 1e-8 * np.linalg.norm(rhs[free])
 
 
 def test_wind_pushes_cloth_downwind():

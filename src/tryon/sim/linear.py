@@ -5,7 +5,8 @@ bending hinge. Its sparsity pattern is fixed for a mesh, so it is built once
 (`BlockPattern`), element Hessians are scattered into it by a compiled kernel, and the
 Cholesky analysis (CHOLMOD, when scikit-sparse is installed) is reused every step.
 Solvers: CHOLMOD supernodal Cholesky, SciPy SuperLU, or a block-Jacobi preconditioned
-conjugate gradient with Baraff-Witkin constraint filtering (compiled).
+conjugate gradient with Baraff-Witkin constraint filtering (compiled, on numba's threads,
+with the same result on any thread count).
 """
 
 from __future__ import annotations
@@ -130,35 +131,104 @@ def bsr_matvec(indptr, indices, blocks, x, out):
         out[r, 2] = s2
 
 
-@nb.njit(cache=True)
-def _apply_block_precond(pinv, free, r, z):
-    for i in range(r.shape[0]):
-        if free[i]:
-            for a in range(3):
-                z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2]
-        else:
-            z[i, 0] = 0.0
-            z[i, 1] = 0.0
-            z[i, 2] = 0.0
+PCG_CHUNK = 256  # rows per chunk of the solver's loops; partial sums are joined in chunk order
 
 
 @nb.njit(cache=True)
-def _dot(a, b):
+def _join(partial):
+    """Sum of per-chunk partial sums in chunk order: the same on any number of threads."""
     s = 0.0
-    for i in range(a.shape[0]):
-        s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
+    for c in range(partial.shape[0]):
+        s += partial[c]
     return s
+
+
+@nb.njit(parallel=True, cache=True)
+def _inverse_diagonal(blocks, diag_block):
+    n = diag_block.shape[0]
+    pinv = np.zeros((n, 3, 3))
+    for i in nb.prange(n):
+        pinv[i] = np.linalg.inv(blocks[diag_block[i]])
+    return pinv
+
+
+@nb.njit(parallel=True, cache=True)
+def _filtered_matvec(indptr, indices, blocks, p, free, ap, partial):
+    """ap = A p on free rows (0 elsewhere); partial[c] = chunk c's share of p . ap."""
+    n = p.shape[0]
+    for c in nb.prange(partial.shape[0]):
+        s = 0.0
+        for r in range(c * PCG_CHUNK, min(n, (c + 1) * PCG_CHUNK)):
+            if not free[r]:
+                ap[r, 0] = 0.0
+                ap[r, 1] = 0.0
+                ap[r, 2] = 0.0
+                continue
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for q in range(indptr[r], indptr[r + 1]):
+                k = indices[q]
+                x0 = p[k, 0]
+                x1 = p[k, 1]
+                x2 = p[k, 2]
+                s0 += blocks[q, 0, 0] * x0 + blocks[q, 0, 1] * x1 + blocks[q, 0, 2] * x2
+                s1 += blocks[q, 1, 0] * x0 + blocks[q, 1, 1] * x1 + blocks[q, 1, 2] * x2
+                s2 += blocks[q, 2, 0] * x0 + blocks[q, 2, 1] * x1 + blocks[q, 2, 2] * x2
+            ap[r, 0] = s0
+            ap[r, 1] = s1
+            ap[r, 2] = s2
+            s += p[r, 0] * s0 + p[r, 1] * s1 + p[r, 2] * s2
+        partial[c] = s
+
+
+@nb.njit(parallel=True, cache=True)
+def _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, rz_part, rr_part):
+    """x += alpha p, r -= alpha ap, z = P^-1 r on free rows; per-chunk r . z and r . r."""
+    n = p.shape[0]
+    for c in nb.prange(rz_part.shape[0]):
+        rz = 0.0
+        rr = 0.0
+        for i in range(c * PCG_CHUNK, min(n, (c + 1) * PCG_CHUNK)):
+            for a in range(3):
+                x[i, a] += alpha * p[i, a]
+                r[i, a] -= alpha * ap[i, a]
+            if free[i]:
+                for a in range(3):
+                    z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2]
+                    rz += r[i, a] * z[i, a]
+                    rr += r[i, a] * r[i, a]
+            else:
+                z[i, 0] = 0.0
+                z[i, 1] = 0.0
+                z[i, 2] = 0.0
+        rz_part[c] = rz
+        rr_part[c] = rr
+
+
+@nb.njit(parallel=True, cache=True)
+def _next_direction(beta, z, p):
+    n = p.shape[0]
+    for c in nb.prange((n + PCG_CHUNK - 1) // PCG_CHUNK):
+        for i in range(c * PCG_CHUNK, min(n, (c + 1) * PCG_CHUNK)):
+            for a in range(3):
+                p[i, a] = z[i, a] + beta * p[i, a]
 
 
 @nb.njit(cache=True)
 def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter):
     """Baraff-Witkin modified PCG: solves A x = b on the free vertices, keeping the given
     values of x on constrained (not free) vertices. Block-Jacobi preconditioner.
-    Returns the iteration count; convergence when |r| <= tol * |b_free|."""
+    Returns the iteration count; convergence when |r| <= tol * |b_free|.
+
+    Its loops run on numba's threads over fixed chunks of rows, and every dot product
+    joins the chunks' partial sums in order, so the iterates are bit-identical on 1 thread
+    and on many."""
     n = b.shape[0]
-    pinv = np.zeros((n, 3, 3))
-    for i in range(n):
-        pinv[i] = np.linalg.inv(blocks[diag_block[i]])
+    chunks = (n + PCG_CHUNK - 1) // PCG_CHUNK
+    pinv = _inverse_diagonal(blocks, diag_block)
+    part_a = np.zeros(chunks)
+    part_b = np.zeros(chunks)
     ax = np.zeros((n, 3))
     bsr_matvec(indptr, indices, blocks, x, ax)
     r = np.zeros((n, 3))
@@ -172,32 +242,24 @@ def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter)
     if bnorm == 0.0:
         bnorm = 1.0
     z = np.zeros((n, 3))
-    _apply_block_precond(pinv, free, r, z)
+    # alpha = 0 leaves x and r as they are and computes z = P^-1 r with r . z and r . r
+    _update_and_precondition(0.0, z, z, pinv, free, x, r, z, part_a, part_b)
+    rz = _join(part_a)
+    rr = _join(part_b)
     p = z.copy()
-    rz = _dot(r, z)
     ap = np.zeros((n, 3))
     it = 0
     while it < max_iter:
-        if np.sqrt(_dot(r, r)) <= tol * bnorm:
+        if np.sqrt(rr) <= tol * bnorm:
             break
-        bsr_matvec(indptr, indices, blocks, p, ap)
-        for i in range(n):
-            if not free[i]:
-                ap[i, 0] = 0.0
-                ap[i, 1] = 0.0
-                ap[i, 2] = 0.0
-        alpha = rz / _dot(p, ap)
-        for i in range(n):
-            for a in range(3):
-                x[i, a] += alpha * p[i, a]
-                r[i, a] -= alpha * ap[i, a]
-        _apply_block_precond(pinv, free, r, z)
-        rz_new = _dot(r, z)
+        _filtered_matvec(indptr, indices, blocks, p, free, ap, part_a)
+        alpha = rz / _join(part_a)
+        _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, part_a, part_b)
+        rz_new = _join(part_a)
+        rr = _join(part_b)
         beta = rz_new / rz
         rz = rz_new
-        for i in range(n):
-            for a in range(3):
-                p[i, a] = z[i, a] + beta * p[i, a]
+        _next_direction(beta, z, p)
         it += 1
     return it
 
