@@ -416,3 +416,27 @@ def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
     made = 100 * Ease().waistband + size_measurements("M", "male")["waist_cm"]
     assert 1.10 < demo["waist_cm"] / made < 1.0 + WAISTBAND_STRETCH - 0.005
     assert size_too_small("trousers", "M", size_measurements("M", "male"), demo) is None
+
+
+def _relax_verdicts(speeds: list[float], until_slowing_stops: bool = True) -> int | None:
+    """The step (1-based) at which RelaxTest stops a relaxation whose fastest vertex moves
+    at `speeds`, or None."""
+    from types import SimpleNamespace
+
+    from tryon.drape.dress import RelaxTest
+
+    test = RelaxTest(rest_speed=0.02, until_slowing_stops=until_slowing_stops)
+    for k, s in enumerate(speeds, 1):
+        v = torch.tensor([[s, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+        if test(SimpleNamespace(state=SimpleNamespace(v=v))):
+            return k
+    return None
+
+
+def test_relaxation_stops_on_drift_but_not_while_the_garment_is_still_fast():
+    drift = [0.9, 0.5, 0.3, 0.2, 0.17] + [0.15] * 30
+    assert _relax_verdicts(drift) == 11  # 0.15 m/s five steps running: stopped slowing, and slow (drift, jitter)
+    assert _relax_verdicts(drift, until_slowing_stops=False) is None  # closed placements relax to rest
+    fast = [1.0] * 5 + [0.97] * 30
+    assert _relax_verdicts(fast) is None  # still spending strain at ~1 m/s: keep relaxing
+    assert _relax_verdicts([0.5, 0.2, 0.1, 0.05, 0.01]) == 5  # at rest
