@@ -131,7 +131,7 @@ def bsr_matvec(indptr, indices, blocks, x, out):
         out[r, 2] = s2
 
 
-PCG_CHUNK = 256  # rows per chunk of the solver's loops; partial sums are joined in chunk order
+PCG_CHUNK = 256  # rows per chunk of the solver's loops (default); partial sums are joined in chunk order
 
 
 @nb.njit(cache=True)
@@ -153,12 +153,12 @@ def _inverse_diagonal(blocks, diag_block):
 
 
 @nb.njit(parallel=True, cache=True)
-def _filtered_matvec(indptr, indices, blocks, p, free, ap, partial):
+def _filtered_matvec(indptr, indices, blocks, p, free, ap, partial, chunk):
     """ap = A p on free rows (0 elsewhere); partial[c] = chunk c's share of p . ap."""
     n = p.shape[0]
     for c in nb.prange(partial.shape[0]):
         s = 0.0
-        for r in range(c * PCG_CHUNK, min(n, (c + 1) * PCG_CHUNK)):
+        for r in range(c * chunk, min(n, (c + 1) * chunk)):
             if not free[r]:
                 ap[r, 0] = 0.0
                 ap[r, 1] = 0.0
@@ -183,13 +183,15 @@ def _filtered_matvec(indptr, indices, blocks, p, free, ap, partial):
 
 
 @nb.njit(parallel=True, cache=True)
-def _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, rz_part, rr_part):
-    """x += alpha p, r -= alpha ap, z = P^-1 r on free rows; per-chunk r . z and r . r."""
+def _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, rz_part, rr_part, chunk):
+    """x += alpha p, r -= alpha ap, z = P^-1 r on free rows; per-chunk r . z and r . r.
+    Only p and ap may be the same array (numba compiles the kernel assuming that no array
+    it writes shares memory with another argument)."""
     n = p.shape[0]
     for c in nb.prange(rz_part.shape[0]):
         rz = 0.0
         rr = 0.0
-        for i in range(c * PCG_CHUNK, min(n, (c + 1) * PCG_CHUNK)):
+        for i in range(c * chunk, min(n, (c + 1) * chunk)):
             for a in range(3):
                 x[i, a] += alpha * p[i, a]
                 r[i, a] -= alpha * ap[i, a]
@@ -207,25 +209,25 @@ def _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, rz_part, rr_part
 
 
 @nb.njit(parallel=True, cache=True)
-def _next_direction(beta, z, p):
+def _next_direction(beta, z, p, chunk):
     n = p.shape[0]
-    for c in nb.prange((n + PCG_CHUNK - 1) // PCG_CHUNK):
-        for i in range(c * PCG_CHUNK, min(n, (c + 1) * PCG_CHUNK)):
+    for c in nb.prange((n + chunk - 1) // chunk):
+        for i in range(c * chunk, min(n, (c + 1) * chunk)):
             for a in range(3):
                 p[i, a] = z[i, a] + beta * p[i, a]
 
 
 @nb.njit(cache=True)
-def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter):
+def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter, chunk=PCG_CHUNK):
     """Baraff-Witkin modified PCG: solves A x = b on the free vertices, keeping the given
     values of x on constrained (not free) vertices. Block-Jacobi preconditioner.
     Returns the iteration count; convergence when |r| <= tol * |b_free|.
 
     Its loops run on numba's threads over fixed chunks of rows, and every dot product
     joins the chunks' partial sums in order, so the iterates are bit-identical on 1 thread
-    and on many."""
+    and on many (for a given `chunk`, rows per chunk)."""
     n = b.shape[0]
-    chunks = (n + PCG_CHUNK - 1) // PCG_CHUNK
+    chunks = (n + chunk - 1) // chunk
     pinv = _inverse_diagonal(blocks, diag_block)
     part_a = np.zeros(chunks)
     part_b = np.zeros(chunks)
@@ -242,24 +244,24 @@ def filtered_pcg(indptr, indices, blocks, diag_block, b, x, free, tol, max_iter)
     if bnorm == 0.0:
         bnorm = 1.0
     z = np.zeros((n, 3))
+    ap = np.zeros((n, 3))
     # alpha = 0 leaves x and r as they are and computes z = P^-1 r with r . z and r . r
-    _update_and_precondition(0.0, z, z, pinv, free, x, r, z, part_a, part_b)
+    _update_and_precondition(0.0, ap, ap, pinv, free, x, r, z, part_a, part_b, chunk)
     rz = _join(part_a)
     rr = _join(part_b)
     p = z.copy()
-    ap = np.zeros((n, 3))
     it = 0
     while it < max_iter:
         if np.sqrt(rr) <= tol * bnorm:
             break
-        _filtered_matvec(indptr, indices, blocks, p, free, ap, part_a)
+        _filtered_matvec(indptr, indices, blocks, p, free, ap, part_a, chunk)
         alpha = rz / _join(part_a)
-        _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, part_a, part_b)
+        _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, part_a, part_b, chunk)
         rz_new = _join(part_a)
         rr = _join(part_b)
         beta = rz_new / rz
         rz = rz_new
-        _next_direction(beta, z, p)
+        _next_direction(beta, z, p, chunk)
         it += 1
     return it
 
