@@ -130,6 +130,25 @@ def test_builtin_motions_move_the_body_smoothly(neutral_shape, name):
     assert np.linalg.norm(frames - frames[0], axis=2).max() > 0.1  # it really moves
 
 
+def test_a_cyclic_motion_repeats_and_a_travelling_root_carries_on():
+    walk = load_motion("walk")
+    three = walk.repeated(3)
+    assert three.num_frames == 3 * (walk.num_frames - 1) + 1
+    assert three.duration == pytest.approx(3 * walk.duration)
+    cycle = walk.num_frames - 1
+    np.testing.assert_allclose(three.rotations[cycle:2 * cycle + 1], walk.rotations, atol=1e-12)
+    labels = ["root"]
+    step = np.linspace(0.0, 1.0, 5)[:, None] * np.array([0.0, 0.5, 0.0])
+    strut = BodyMotion(np.zeros((5, 1, 3)), labels, 30.0, step)
+    twice = strut.repeated(2)
+    np.testing.assert_allclose(twice.root_translation[-1], [0.0, 1.0, 0.0])
+    assert np.all(np.diff(twice.root_translation[:, 1]) > 0)  # no jump back at the join
+    with pytest.raises(TryonError, match="not a cycle"):
+        BodyMotion(np.linspace(0, 1, 4)[:, None, None] * np.ones((4, 1, 3)), labels, 30.0).repeated(2)
+    with pytest.raises(TryonError, match="whole number"):
+        walk.repeated(0)
+
+
 def test_bvh_round_trip_reproduces_the_motion(neutral_shape, tmp_path):
     walk = load_motion("walk")
     text = motion_to_bvh(walk, neutral_shape)

@@ -42,15 +42,24 @@ from tryon.sim.scene import Scene, example_scene
 from tryon.io.json_safe import dumps_json
 
 SCHEDULER_P = (8, 16, 32, 64, 128, 256, 512)
+PROJECTED_P = 128  # the worker count the K probes project the speedup to
 DRAPE = {"height_cm": 172.0, "weight_kg": 70.0, "gender": "female", "garment": "tshirt", "size": "M",
-         "fabric": "gray-interlock", "edge_length": 0.03}
+         "fabric": "gray-interlock"}
+# The default workloads: the T-shirt at 1 cm edges through two cyclic motions played for
+# about 8 s each, and sphere-drop at 64 x 64; --quick: a 3 cm T-shirt walking 0.4 s and a
+# 17 x 17 sphere-drop.
+GARMENT_EDGE, QUICK_EDGE = 0.01, 0.03
+GARMENT_MOTIONS = {"walk": 4, "arm-raise": 3}  # motion: repetitions (walk 2.2 s, arm-raise 2.8 s)
+SPHERE_RESOLUTION, QUICK_SPHERE_RESOLUTION = 64, 17
+PROBE_EDGES = (0.01, 0.005)  # garment edge lengths whose K is probed and projected to PROJECTED_P
+PROBE_STEPS = 12
 
 
-def bench_drape_dir() -> Path:
-    """A small t-shirt drape for the garment animation, made once and cached."""
+def bench_drape_dir(edge_length: float = GARMENT_EDGE) -> Path:
+    """The bench's T-shirt drape at `edge_length`, made once and cached."""
     from tryon.drape.dress import cache_dir
 
-    out = cache_dir() / "bench-parallel-drape"
+    out = cache_dir() / f"bench-parallel-drape-{edge_length * 1000:g}mm"
     if not (out / "drape_state.npz").exists():
         from tryon.body.fit import Measurements
         from tryon.drape import DrapeRequest, drape
@@ -58,18 +67,71 @@ def bench_drape_dir() -> Path:
 
         d = DRAPE
         req = DrapeRequest(Measurements(height_cm=d["height_cm"], gender=d["gender"], weight_kg=d["weight_kg"]),
-                           garment=d["garment"], size=d["size"], fabric=d["fabric"], edge_length=d["edge_length"])
+                           garment=d["garment"], size=d["size"], fabric=d["fabric"], edge_length=edge_length)
         write_outputs(drape(req, progress=False), out)
     return out
 
 
-def bench_scenes(quick: bool) -> list[Scene]:
+def bench_scenes(quick: bool, only: list[str] | None = None) -> list[Scene]:
+    """The workloads (named as their records' `scene`), or those of them named in `only`."""
     from tryon.drape.animate import animation_scene
 
-    # a short blend from the drape's pose, so that most of the run is walking
-    garment = animation_scene(bench_drape_dir(), "walk", dt=0.01, duration=0.4 if quick else 1.2, blend_time=0.2)
-    sphere = example_scene("sphere-drop", 17 if quick else 33, duration=0.4 if quick else 1.0)
-    return [garment, sphere]
+    known = [f"animate-{m}" for m in (["walk"] if quick else GARMENT_MOTIONS)] + ["sphere-drop"]
+    wanted = known if not only else list(only)
+    unknown = sorted(set(wanted) - set(known))
+    if unknown:
+        from tryon.errors import TryonError
+
+        raise TryonError(f"unknown parallel bench scene(s) {', '.join(unknown)}; choose from {', '.join(known)}")
+    scenes = []
+    for name in wanted:
+        if name == "sphere-drop":
+            res = QUICK_SPHERE_RESOLUTION if quick else SPHERE_RESOLUTION
+            scenes.append(example_scene("sphere-drop", res, duration=0.4 if quick else 1.0))
+            continue
+        motion = name.removeprefix("animate-")
+        # a short blend from the drape's pose, so that most of the run is the motion
+        scenes.append(animation_scene(bench_drape_dir(QUICK_EDGE if quick else GARMENT_EDGE), motion, dt=0.01,
+                                      duration=0.4 if quick else None, blend_time=0.2,
+                                      repeat=1 if quick else GARMENT_MOTIONS[motion]))
+    return scenes
+
+
+def probe_costs(scene: Scene, hier: Hierarchy, fine_steps: int = PROBE_STEPS) -> tuple[float, float]:
+    """Median seconds of a fine step and of the coarse run per fine step, from a short run
+    of each level past the motion's blend (their first steps warm up the solvers)."""
+    solver = ImplicitEulerSolver(scene.model, scene.options)
+    seconds = [rec.seconds for rec in steps(solver, scene.model.initial_state(), scene.dt, stop=fine_steps + 3)][3:]
+    run = CoarseRun(hier)
+    while run.position < (fine_steps + 3) * hier.dt_ratio and run.position < scene.num_steps:
+        run.advance()
+    coarse = np.asarray(run.seconds[3:] or run.seconds) / hier.dt_ratio
+    return float(np.median(seconds)), float(np.median(coarse))
+
+
+def k_probes(motion: str = "walk", edges: tuple[float, ...] = PROBE_EDGES, recovery_s: float | None = None) -> list[dict]:
+    """K of the garment workload at each edge length, measured on a short run of both
+    levels, and the speedup the scheduler simulation predicts at `PROJECTED_P` workers
+    from those costs (and a segment start-up of `recovery_s`, default: 20 fine steps)."""
+    from tryon.drape.animate import animation_scene
+
+    out = []
+    for edge in edges:
+        scene = animation_scene(bench_drape_dir(edge), motion, dt=0.01, blend_time=0.2, repeat=GARMENT_MOTIONS[motion])
+        hier = build_hierarchy(scene)
+        fine, coarse = probe_costs(scene, hier)
+        start_up = 20 * fine if recovery_s is None else recovery_s
+        overlap = int(round(ParallelOptions().crossfade / scene.dt))
+        projected = scheduler_predictions(np.full(64, fine), np.full(64, coarse), start_up, scene.name, overlap,
+                                          workers=(PROJECTED_P,))
+        best = max(projected, key=lambda r: r["predicted_speedup"])
+        out.append({"scene": scene.name, "edge_length": edge, "fine_vertices": hier.fine.model.num_vertices,
+                    "coarse_vertices": hier.coarse.model.num_vertices, "dt_ratio": hier.dt_ratio,
+                    "fine_s_per_step": fine, "coarse_s_per_fine_step": coarse, "K": fine / coarse,
+                    "projected_workers": PROJECTED_P, "projected_partition": best["partition"],
+                    "projected_speedup": best["predicted_speedup"],
+                    "projected_share_of_K": best["predicted_speedup"] / (fine / coarse)})
+    return out
 
 
 def serial_run(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -92,7 +154,7 @@ def coarse_costs(hier: Hierarchy) -> np.ndarray:
     return np.repeat(np.asarray(run.seconds) / hier.dt_ratio, hier.dt_ratio)[: hier.fine.num_steps]
 
 
-_ORACLE: dict = {}
+_ORACLE: dict = {}  # (scene, hierarchy fingerprint, step) -> recovery from the serial run's exact coarse states
 LONG_RECOVERY = RecoveryOptions(tolerance=1e-5, max_iterations=10)  # recovery run to 10 iterations
 
 
@@ -104,6 +166,7 @@ def boundary_errors(hier: Hierarchy, segments, states: np.ndarray) -> list[dict]
     segment's start at the same time, next to the serial run's mean motion in one step."""
     model = hier.fine.model
     solver = ImplicitEulerSolver(model, hier.fine.options)
+    identity = (hier.fine.name, hier.fingerprint())
     out = []
     for prev, s in zip([None, *segments[:-1]], segments):
         if s.x_upsampled is None:
@@ -119,7 +182,7 @@ def boundary_errors(hier: Hierarchy, segments, states: np.ndarray) -> list[dict]
             jump = np.linalg.norm(s.x_start - prev.x_end, axis=1)
             out[-1].update(jump_mm=1000 * float(jump.mean()), jump_max_mm=1000 * float(jump.max()),
                            pop_curvature=relative_curvature_error(model, s.x_start, prev.x_end))
-        key = (id(hier), s.start)
+        key = (*identity, s.start)
         if key not in _ORACLE and s.start + 1 < len(states):
             _ORACLE[key] = (oracle_recovery_errors(solver, hier, states, s.start),
                             oracle_recovery_errors(solver, hier, states, s.start, LONG_RECOVERY))
@@ -219,12 +282,12 @@ def simulate_schedule(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, p
 
 
 def scheduler_predictions(fine: np.ndarray, coarse: np.ndarray, recovery_s: float, scene: str,
-                          overlap: int = 0) -> list[dict]:
+                          overlap: int = 0, workers: tuple[int, ...] = SCHEDULER_P) -> list[dict]:
     """Predicted speedup and efficiency for P = 8..512 from measured costs tiled to 16 x 512 steps."""
     n = 16 * max(SCHEDULER_P)
     f, c = np.resize(fine, n), np.resize(coarse, n)
     out = []
-    for p in SCHEDULER_P:
+    for p in workers:
         for partition in ("uniform", "balanced"):
             speedup = float(f.sum() / simulate_schedule(f, c, recovery_s, p, partition, overlap))
             out.append({"scene": scene, "workers": p, "partition": partition, "predicted_speedup": speedup,
@@ -314,8 +377,11 @@ def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, p
     save_png(path, picture)
 
 
-def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] | None = None) -> list[dict]:
-    """Run the benchmark, print a table and write the records (and two PNGs) next to json_path."""
+def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] | None = None,
+                       only: list[str] | None = None) -> list[dict]:
+    """Run the benchmark (the scenes in `only`, default all), print a table and write the
+    records, the K probes at 1 cm and 0.5 cm (with the walk; not with --quick) and two
+    PNGs next to json_path."""
     from tryon.parallel.executors import connect_ray
 
     workers = sorted(set(workers or [1, 2]))
@@ -328,7 +394,7 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
     started = connect_ray(None, max(workers))
     records, predictions = [], []
     try:
-        for scene in bench_scenes(quick):
+        for scene in bench_scenes(quick, only):
             hier = build_hierarchy(scene)
             states, fine_costs = serial_run(scene)
             serial_s = float(fine_costs.sum())
@@ -350,16 +416,26 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
             import ray
 
             ray.shutdown()
+    probes = [] if quick or (only and "animate-walk" not in only) else k_probes("walk", recovery_s=_walk_start_up(records))
+    for r in probes:
+        print(f"  K probe {r['scene']} at {r['edge_length'] * 100:g} cm: {r['fine_vertices']} / {r['coarse_vertices']} "
+              f"vertices, K {r['K']:.1f}; predicted speedup at P={r['projected_workers']}: {r['projected_speedup']:.1f} "
+              f"({100 * r['projected_share_of_K']:.0f} % of K)")
     plot_scheduler(predictions, json_path.with_name(json_path.stem + "-scheduler.png"))
     for r in predictions:
         if r["partition"] == "balanced":
             print(f"  predicted {r['scene']:<22} P={r['workers']:<4} speedup {r['predicted_speedup']:7.1f}  "
                   f"efficiency {r['efficiency']:.2f}")
-    payload = {"records": records, "scheduler": predictions, "cpu_count": os.cpu_count(),
+    payload = {"records": records, "scheduler": predictions, "k_probes": probes, "cpu_count": os.cpu_count(),
                "note": "speedups measured on this machine are limited by its CPU cores (shared with other work)"}
     with atomic_write(json_path) as fh:
         fh.write(dumps_json(payload, indent=2))
     return records
+
+
+def _walk_start_up(records: list[dict]) -> float | None:
+    """Mean measured segment start-up (s) of the walk's runs, if any ran."""
+    return _mean([b["setup_s"] for r in records if r["scene"] == "animate-walk" for b in r["boundaries"]])
 
 
 def _print(r: dict) -> None:

@@ -55,6 +55,27 @@ class BodyMotion:
     def duration(self) -> float:
         return (self.num_frames - 1) / self.fps
 
+    def repeated(self, cycles: int, tolerance: float = 1e-3) -> "BodyMotion":
+        """The motion played `cycles` times in a row. Only a cyclic motion (its last frame
+        the first one again, within `tolerance` rad and m) repeats: its last frame is the
+        next cycle's first, and a root that travels carries on from where the cycle ends."""
+        if int(cycles) != cycles or cycles < 1:
+            raise TryonError(f"motion {self.name}: the number of repetitions must be a whole number >= 1, got {cycles}")
+        cycles = int(cycles)
+        if cycles == 1:
+            return self
+        if self.num_frames < 2:
+            raise TryonError(f"motion {self.name}: a single frame cannot repeat")
+        turn = float(np.abs(self.rotations[-1] - self.rotations[0]).max())
+        if turn > tolerance:
+            raise TryonError(f"motion {self.name} is not a cycle (its last frame differs from its first by up to "
+                             f"{turn:.3f} rad), so it cannot repeat")
+        step = self.root_translation[-1] - self.root_translation[0]
+        rotations = [self.rotations] + [self.rotations[1:]] * (cycles - 1)
+        translation = [self.root_translation] + [self.root_translation[1:] + k * step for k in range(1, cycles)]
+        return BodyMotion(np.concatenate(rotations), list(self.bone_labels), self.fps, np.concatenate(translation),
+                          self.name)
+
     def pose_matrices(self, shape: BodyShape) -> np.ndarray:
         """Rotations [T,J_body,3,3] for the bones of `shape` (unnamed bones: identity)."""
         R = np.tile(identity_pose(shape)[None], (self.num_frames, 1, 1, 1))

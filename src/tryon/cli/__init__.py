@@ -160,8 +160,9 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         from tryon.kdsm.model import shipped_model_path
 
         args.model = args.model or shipped_model_path("kdsm-hybrid")
-        if args.resume or args.parallel == "time":
-            raise TryonError("--resume and --parallel belong to the simulated animation; a KDSM animation takes seconds")
+        if args.resume or args.parallel == "time" or args.repeat != 1:
+            raise TryonError("--resume, --parallel and --repeat belong to the simulated animation; a KDSM animation "
+                             "takes seconds")
         rep = kdsm_animate(args.drape_dir, args.model, args.motion, out=args.out, duration=args.duration,
                            progress=not args.quiet, force=args.force, push_out=not args.no_push_out)
         print(f"{rep['motion']}: {rep['frames']} frames by {rep['method']} at {rep['ms_per_frame']:.1f} ms per frame "
@@ -171,7 +172,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     if args.model or args.no_push_out:
         raise TryonError("--model and --no-push-out belong to --method kdsm")
     rep = animate(args.drape_dir, args.motion, out=args.out, dt=args.dt, progress=not args.quiet, resume=args.resume,
-                  run=_time_parallel_runner(args), duration=args.duration, force=args.force)
+                  run=_time_parallel_runner(args), duration=args.duration, force=args.force, repeat=args.repeat)
     print(f"{rep['motion']}: {rep['frames']} frames, {rep['steps']} steps in {rep['wall_s']:.1f} s; max strain "
           f"{rep['max_strain'] * 100:.1f} %, penetration up to {rep['max_penetration_pct']:.2f} % of vertices, "
           f"intersections {rep['intersections']}")
@@ -257,7 +258,8 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm"]
+BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm",
+           "size"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -280,7 +282,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "parallel":
         from tryon.bench.parallel import run_parallel_bench
 
-        run_parallel_bench(args.json, quick=args.quick, workers=args.workers)
+        run_parallel_bench(args.json, quick=args.quick, workers=args.workers, only=args.only)
         return 0
     if args.what == "learned":
         from tryon.bench.learned import run_learned_bench
@@ -288,6 +290,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         if not args.data:
             raise TryonError("tryon bench learned needs --data DATASET (a drape dataset from tryon dataset drape)")
         run_learned_bench(args.json, args.data, model_path=args.model, quick=args.quick)
+        return 0
+    if args.what == "size":
+        from tryon.bench.size import run_size_bench
+
+        run_size_bench(args.json, model_path=args.model, quick=args.quick)
         return 0
     if args.what == "kdsm":
         from tryon.bench.kdsm import run_kdsm_bench
@@ -435,6 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", help="output directory (default DRAPE_DIR/animation-MOTION)")
     a.add_argument("--dt", type=float, default=0.01, help="time step in seconds")
     a.add_argument("--duration", type=float, help="simulated seconds (default: the whole motion)")
+    a.add_argument("--repeat", type=int, default=1, help="play a cyclic motion (walk) this many times in a row")
     a.add_argument("--resume", action="store_true", help="continue an interrupted animation from its checkpoint")
     a.add_argument("--method", choices=["simulate", "kdsm"], default="simulate",
                    help="simulate the garment, or predict it pose by pose with a trained KDSM model (--model)")
@@ -476,11 +484,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged; kdsm: the pose dataset")
-    b.add_argument("--model", help="learned: a model file instead of the shipped one")
+    b.add_argument("--model", help="learned, size: a model file instead of the shipped one")
     b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm), one per method")
     b.add_argument("--drape", help="kdsm: a drape of the models' garment to animate against the simulator")
     b.add_argument("--motion", help="kdsm: the held-out motion (.npz/.bvh; default: random key poses of an unused seed)")
-    b.add_argument("--only", nargs="+", metavar="VARIANT", help="ablations: these variants only (default: all)")
+    b.add_argument("--only", nargs="+", metavar="NAME",
+                   help="ablations: these variants only; parallel: these scenes only (animate-walk, animate-arm-raise, "
+                        "sphere-drop); default: all")
     b.add_argument("--epochs", type=int, help="ablations: epochs per variant (default 40; --quick 4)")
     b.add_argument("--reference", metavar="DIR",
                    help="fidelity, fit-fabric: a folder of ARCSim runs (*.npz, ground truth included; default: the copy "

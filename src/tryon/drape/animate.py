@@ -59,9 +59,10 @@ def drape_print(drape_dir: str | Path, state: dict):
 
 
 def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.01, duration: float | None = None,
-                    blend_time: float = 0.5) -> Scene:
+                    blend_time: float = 0.5, repeat: int = 1) -> Scene:
     """The draped garment of `drape_dir` as cloth and its body moving through `motion`
-    (a built-in name, .npz or .bvh) as a key-framed obstacle, ready to simulate."""
+    (a built-in name, .npz or .bvh; a cyclic one played `repeat` times) as a key-framed
+    obstacle, ready to simulate."""
     from tryon.sim.mesh import ClothMesh
     from tryon.sim.model import ClothModel, CollisionSettings
     from tryon.sim.obstacles import Motion, Obstacle
@@ -72,7 +73,7 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
     request = state["request"]
     shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"]))
     start_pose = named_pose(shape, "a")
-    body_motion = load_motion(motion, shape)
+    body_motion = load_motion(motion, shape).repeated(repeat)
     frames, times = motion_keyframes(shape, body_motion, start_pose, blend_time=blend_time)
     if np.abs(frames[0] - state["body_vertices"]).max() > 1e-3:
         raise TryonError(f"{drape_dir}: the stored body does not match its parameters (drape made with another body "
@@ -89,7 +90,7 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
     if total <= 0:
         raise TryonError(f"animation duration must be positive, got {total}")
     spec = {"animation": {"drape": str(Path(drape_dir).resolve()), "motion": str(motion), "dt": dt, "duration": total,
-                          "blend_time": blend_time, "motion_frames": int(body_motion.num_frames),
+                          "repeat": int(repeat), "blend_time": blend_time, "motion_frames": int(body_motion.num_frames),
                           "print": None if printed is None else printed[0].describe(printed[1])}}
     origin = PatternOrigin(float(request["edge_length"]), np.asarray(state["face_panel"]),
                            functools.partial(remesh_pattern, Pattern.from_dict(state["pattern"])))
@@ -142,10 +143,11 @@ def render_preview(scene: Scene, positions: np.ndarray, times: np.ndarray, size=
 
 def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None = None, dt: float = 0.01,
             progress: bool = True, resume: bool = False, run=None, duration: float | None = None,
-            force: bool = False) -> dict:
+            force: bool = False, repeat: int = 1) -> dict:
     """Simulate the drape in `drape_dir` through `motion` and write the outputs (see the
     module docstring) into `out` (default DIR/animation-<motion>). `duration` (s) cuts the
-    motion short (default: the whole motion plus the blend from the drape's pose). `run(scene, work_dir,
+    motion short (default: the whole motion plus the blend from the drape's pose); a cyclic
+    motion plays `repeat` times. `run(scene, work_dir,
     progress, resume)` may replace the serial simulation (e.g. a time-parallel run); it
     returns a `tryon.sim.runner.RunResult`."""
     from tryon.io.atomic import atomic_output_dir, atomic_write, check_output_dir, claim_work_dir
@@ -157,7 +159,7 @@ def animate(drape_dir: str | Path, motion: str = "walk", out: str | Path | None 
     t0 = time.perf_counter()
     out = Path(out) if out is not None else Path(drape_dir) / f"animation-{Path(str(motion)).stem}"
     check_output_dir(out, force=force)
-    scene = animation_scene(drape_dir, motion, dt=dt, duration=duration)
+    scene = animation_scene(drape_dir, motion, dt=dt, duration=duration, repeat=repeat)
     work = claim_work_dir(out.with_name(out.name + ".checkpoint"), resume=resume, force=force)
     if run is None:
         result = simulate(scene, progress=progress, checkpoint_dir=work, resume=resume)

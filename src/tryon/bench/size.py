@@ -1,0 +1,74 @@
+"""`tryon bench size`: does `tryon size` recommend, across the BMI range, the size the same
+fit rule picks from simulated drapes?
+
+For every bench body (both genders, BMI 18-40) the recommendation is made twice: from the
+learned model's drapes (learned + refinement, the default of `tryon size`) and from the
+simulator's drapes of every size (`method="simulate"`). Each record holds both sizes,
+whether they agree, both wall times (body fit included) and every size's torso ease and
+overstretched area under each method. The simulated side is the slow one (one full drape
+per size), so bodies are finished one at a time and kept: a stopped bench resumes.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tqdm import tqdm
+
+from tryon.bench.records import write_records
+from tryon.body.fit import Measurements
+
+# (gender, height cm, weight kg): BMI about 19, 25, 30 and 35-40 for each gender
+BODIES = (("female", 160, 49), ("female", 165, 68), ("female", 168, 85), ("female", 162, 95),
+          ("male", 178, 61), ("male", 180, 81), ("male", 176, 93), ("male", 183, 125))
+QUICK_BODIES = BODIES[1:2]
+
+
+def _summary(rec: dict) -> dict:
+    return {"recommended": rec["recommended"], "wall_s": rec["wall_s"], "fit_body_s": rec["fit_body_s"],
+            "sizes": {j["size"]: {"fits": j["fits"], "torso_ease_cm": j["torso_ease_cm"],
+                                  "overstrained_area_pct": j["overstrained_area_pct"],
+                                  "max_strain_pct": j["max_strain_pct"]} for j in rec["sizes"]}}
+
+
+def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str | None = None) -> dict:
+    """Both recommendations for one body."""
+    from tryon.learn.size import size_recommendation
+
+    body = Measurements(height_cm=height_cm, weight_kg=weight_kg, gender=gender)
+    learned, _ = size_recommendation(body, method="learned", refine=True, model_path=model_path)
+    sizes = list(learned["sizes"][i]["size"] for i in range(len(learned["sizes"])))
+    simulated, _ = size_recommendation(body, method="simulate", model_path=model_path, sizes=sizes)
+    return {"gender": gender, "height_cm": height_cm, "weight_kg": weight_kg,
+            "bmi": weight_kg / (height_cm / 100) ** 2, "sizes": sizes,
+            "recommended_learned": learned["recommended"], "recommended_simulated": simulated["recommended"],
+            "agree": learned["recommended"] == simulated["recommended"],
+            "learned_s": learned["wall_s"], "simulated_s": simulated["wall_s"],
+            "learned": _summary(learned), "simulated": _summary(simulated)}
+
+
+def run_size_bench(json_path: str, model_path: str | None = None, quick: bool = False) -> list[dict]:
+    """Run the bench (bodies finished earlier, kept in `<json>.bodies/`, are reused), print
+    a table and write the records."""
+    json_path = Path(json_path)
+    keep = json_path.with_name(json_path.name + ".bodies")
+    keep.mkdir(parents=True, exist_ok=True)
+    records = []
+    for gender, height, weight in tqdm(QUICK_BODIES if quick else BODIES, desc="size bench bodies", disable=None):
+        path = keep / f"{gender}-{height}-{weight}.json"
+        if path.exists():
+            rec = json.loads(path.read_text())
+        else:
+            rec = bench_body(gender, height, weight, model_path)
+            tmp = path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(rec, indent=2))
+            tmp.replace(path)
+        records.append(rec)
+        print(f"{gender:<6} {height} cm / {weight} kg (BMI {rec['bmi']:.1f}): learned {rec['recommended_learned']} "
+              f"in {rec['learned_s']:.1f} s, simulated {rec['recommended_simulated']} in {rec['simulated_s']:.0f} s"
+              f"{'' if rec['agree'] else '  (differ)'}")
+    agree = sum(r["agree"] for r in records)
+    print(f"{agree} of {len(records)} bodies: the learned recommendation is the simulated one")
+    write_records(str(json_path), records, model=model_path or "shipped")
+    return records
