@@ -52,7 +52,7 @@ GARMENT_EDGE, QUICK_EDGE = 0.01, 0.03
 GARMENT_MOTIONS = {"walk": 4, "arm-raise": 3}  # motion: repetitions (walk 2.2 s, arm-raise 2.8 s)
 SPHERE_RESOLUTION, QUICK_SPHERE_RESOLUTION = 64, 17
 PROBE_EDGES = (0.01, 0.005)  # garment edge lengths whose K is probed and projected to PROJECTED_P
-PROBE_STEPS = 12
+PROBE_STEPS = 30  # fine steps of a K probe: the 0.2 s blend from the drape's pose and 0.1 s of the motion
 
 
 def bench_drape_dir(edge_length: float = GARMENT_EDGE) -> Path:
@@ -99,7 +99,7 @@ def bench_scenes(quick: bool, only: list[str] | None = None) -> list[Scene]:
 
 def probe_costs(scene: Scene, hier: Hierarchy, fine_steps: int = PROBE_STEPS) -> tuple[float, float]:
     """Median seconds of a fine step and of the coarse run per fine step, from a short run
-    of each level past the motion's blend (their first steps warm up the solvers)."""
+    of each level from the start (three steps first to warm up the solvers)."""
     solver = ImplicitEulerSolver(scene.model, scene.options)
     seconds = [rec.seconds for rec in steps(solver, scene.model.initial_state(), scene.dt, stop=fine_steps + 3)][3:]
     run = CoarseRun(hier)
