@@ -34,7 +34,7 @@ PGS_SWEEPS = 60
 IPM_ITERATIONS = 80
 # An infeasible projection (contacts that contradict each other) shows as a primal residual
 # that stops falling while the multipliers grow without bound; solvable ones here converge
-# in 6-16 iterations. From IPM_STALL_START on, a primal residual above half its value
+# in 6-22 iterations. From IPM_STALL_START on, a primal residual above half its value
 # IPM_STALL_WINDOW iterations earlier ends the solve as not converged (a sleeve's sewing
 # step spent 45 s in 80-iteration solves of growing, infeasible impact zones).
 IPM_STALL_START, IPM_STALL_WINDOW = 20, 10
@@ -212,7 +212,7 @@ def _constraint_matrix(idx, w, n, inv_mass):
 class _NewtonSolver:
     """Solves with the interior point method's SPD Newton matrices, whose sparsity does
     not change within one projection: CHOLMOD analyses the pattern once and refactors the
-    values each iteration (the analysis cost as much as the factorisation); SuperLU when
+    values each iteration; SuperLU when
     CHOLMOD is missing or a matrix lost definiteness to round-off."""
 
     def __init__(self):
