@@ -111,24 +111,29 @@ def add_diagonal_blocks(blocks, diag_block, vertices, block_values):
                 blocks[dst, i, j] += block_values[q, i, j]
 
 
+@nb.njit(cache=True, inline="always")
+def _block_row(indptr, indices, blocks, x, r, out):
+    """out[r] = (block row r of the matrix) . x. Inlined: a call per row costs 40 % in the PCG."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for q in range(indptr[r], indptr[r + 1]):
+        k = indices[q]
+        x0 = x[k, 0]
+        x1 = x[k, 1]
+        x2 = x[k, 2]
+        s0 += blocks[q, 0, 0] * x0 + blocks[q, 0, 1] * x1 + blocks[q, 0, 2] * x2
+        s1 += blocks[q, 1, 0] * x0 + blocks[q, 1, 1] * x1 + blocks[q, 1, 2] * x2
+        s2 += blocks[q, 2, 0] * x0 + blocks[q, 2, 1] * x1 + blocks[q, 2, 2] * x2
+    out[r, 0] = s0
+    out[r, 1] = s1
+    out[r, 2] = s2
+
+
 @nb.njit(cache=True)
 def bsr_matvec(indptr, indices, blocks, x, out):
-    n = indptr.shape[0] - 1
-    for r in range(n):
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        for p in range(indptr[r], indptr[r + 1]):
-            c = indices[p]
-            x0 = x[c, 0]
-            x1 = x[c, 1]
-            x2 = x[c, 2]
-            s0 += blocks[p, 0, 0] * x0 + blocks[p, 0, 1] * x1 + blocks[p, 0, 2] * x2
-            s1 += blocks[p, 1, 0] * x0 + blocks[p, 1, 1] * x1 + blocks[p, 1, 2] * x2
-            s2 += blocks[p, 2, 0] * x0 + blocks[p, 2, 1] * x1 + blocks[p, 2, 2] * x2
-        out[r, 0] = s0
-        out[r, 1] = s1
-        out[r, 2] = s2
+    for r in range(indptr.shape[0] - 1):
+        _block_row(indptr, indices, blocks, x, r, out)
 
 
 PCG_CHUNK = 256  # rows per chunk of the solver's loops (default); partial sums are joined in chunk order
@@ -164,21 +169,8 @@ def _filtered_matvec(indptr, indices, blocks, p, free, ap, partial, chunk):
                 ap[r, 1] = 0.0
                 ap[r, 2] = 0.0
                 continue
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-            for q in range(indptr[r], indptr[r + 1]):
-                k = indices[q]
-                x0 = p[k, 0]
-                x1 = p[k, 1]
-                x2 = p[k, 2]
-                s0 += blocks[q, 0, 0] * x0 + blocks[q, 0, 1] * x1 + blocks[q, 0, 2] * x2
-                s1 += blocks[q, 1, 0] * x0 + blocks[q, 1, 1] * x1 + blocks[q, 1, 2] * x2
-                s2 += blocks[q, 2, 0] * x0 + blocks[q, 2, 1] * x1 + blocks[q, 2, 2] * x2
-            ap[r, 0] = s0
-            ap[r, 1] = s1
-            ap[r, 2] = s2
-            s += p[r, 0] * s0 + p[r, 1] * s1 + p[r, 2] * s2
+            _block_row(indptr, indices, blocks, p, r, ap)
+            s += p[r, 0] * ap[r, 0] + p[r, 1] * ap[r, 1] + p[r, 2] * ap[r, 2]
         partial[c] = s
 
 
