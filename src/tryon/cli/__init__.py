@@ -350,7 +350,7 @@ def _parallel_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ray-address", help="join this Ray cluster instead of starting a local one")
     p.add_argument("--coarse-dt-ratio", type=int, metavar="R",
                    help="the coarse run takes time steps R times the fine one (cheaper coarse run, larger K; "
-                        "default 2 for garment animations, 1 otherwise)")
+                        "default 4 for garment animations, 1 otherwise)")
     p.add_argument("--crossfade", type=float, default=0.2, metavar="SECONDS",
                    help="each segment runs this long past its end and the join cross-fades it into the next "
                         "segment's start, so boundaries do not pop (0: segments meet in one frame)")

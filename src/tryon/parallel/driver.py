@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 class ParallelOptions:
     """How to split a run. `segments` defaults to `workers`; `level` picks the hierarchy
     ('auto', 'coarsen' by `factor`, 'subdivide'; see `build_hierarchy`); the coarse run
-    steps `dt_ratio` fine steps at once (None: 2 for garment animations, else 1) and
+    steps `dt_ratio` fine steps at once (None: 4 for garment animations, else 1) and
     (garments) may collide with a body proxy of `obstacle_cell` metres (see
     `build_hierarchy`); `K` (fine/coarse cost per step) fixes the
     balanced partition, else a short probe measures it. `crossfade` (seconds) is how long
