@@ -106,3 +106,24 @@ def test_a_packed_dataset_keeps_every_sample_in_half_precision(dataset, tmp_path
     assert packed.arrays["x"].dtype == np.float16 and packed.arrays["unit"].tolist() == full.arrays["unit"].tolist()
     assert np.abs(packed.arrays["x"].astype(np.float32) - full.arrays["x"]).max() < 0.001
     assert packed.manifest.spec == full.manifest.spec and set(packed.references) == set(full.references)
+
+
+def test_a_pack_of_some_splits_keeps_only_their_samples(dataset, tmp_path, capsys):
+    import shutil
+
+    out, _, _ = dataset
+    src = tmp_path / "src"
+    shutil.copytree(out, src)
+    for k, split in ((0, "train"), (1, "test")):  # one body's drapes per shard, relabelled
+        shard = src / "shards" / f"shard-0000{k}.npz"
+        with np.load(shard) as z:
+            arrays = {key: z[key] for key in z.files}
+        arrays["split"] = np.array([split] * len(arrays["split"]))
+        np.savez_compressed(shard, **arrays)
+    full = load_drape_dataset(src)
+    assert main(["dataset", "pack", str(src), "--out", str(tmp_path / "part"), "--splits", "test"]) == 0
+    part = load_drape_dataset(tmp_path / "part")
+    assert part.arrays["unit"].tolist() == full.arrays["unit"][full.arrays["split"] == "test"].tolist() == [2, 3]
+    assert part.arrays["x"].dtype == np.float16 and set(part.references) == set(full.references)
+    assert main(["dataset", "pack", str(src), "--out", str(tmp_path / "none"), "--splits", "nowhere"]) == 2
+    assert "nowhere" in capsys.readouterr().err and not (tmp_path / "none").exists()

@@ -287,9 +287,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "learned":
         from tryon.bench.learned import run_learned_bench
 
-        if not args.data:
-            raise TryonError("tryon bench learned needs --data DATASET (a drape dataset from tryon dataset drape)")
-        run_learned_bench(args.json, args.data, model_path=args.model, quick=args.quick)
+        data = args.data
+        if not data:
+            if args.model:
+                raise TryonError("tryon bench learned --model needs --data DATASET (the held-out drapes that ship "
+                                 "belong to the shipped model)")
+            from tryon.learn.model import shipped_eval_data_path
+
+            data = str(shipped_eval_data_path("tshirt"))
+        run_learned_bench(args.json, data, model_path=args.model, quick=args.quick)
         return 0
     if args.what == "size":
         from tryon.bench.size import run_size_bench
@@ -483,7 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
-    b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged; kdsm: the pose dataset")
+    b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged (learned: default "
+                                  "the shipped model's held-out drapes); kdsm: the pose dataset")
     b.add_argument("--model", help="learned, size: a model file instead of the shipped one")
     b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm), one per method")
     b.add_argument("--drape", help="kdsm: a drape of the models' garment to animate against the simulator")

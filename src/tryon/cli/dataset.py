@@ -63,7 +63,7 @@ def _cmd_dataset_poses(args: argparse.Namespace) -> int:
 def _cmd_dataset_pack(args: argparse.Namespace) -> int:
     from tryon.dataset.loading import load_drape_dataset, pack_dataset
 
-    out = pack_dataset(args.dataset, args.out, force=args.force)
+    out = pack_dataset(args.dataset, args.out, force=args.force, splits=args.splits)
     print(json.dumps(load_drape_dataset(out).summary(), indent=1))
     print(f"compact dataset: {out}")
     return 0
@@ -126,4 +126,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     k.add_argument("dataset", help="dataset folder")
     k.add_argument("--out", required=True, help="folder of the copy")
     k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    k.add_argument("--splits", nargs="+", metavar="SPLIT",
+                   help="keep only these splits' samples (e.g. test extrapolation: what a model ships to be judged on)")
     k.set_defaults(func=_cmd_dataset_pack)

@@ -115,10 +115,12 @@ def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
     return DrapeDataset(manifest, arrays, first.faces, first.references)
 
 
-def pack_dataset(src: str | Path, dst: str | Path, force: bool = False) -> Path:
+def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: list[str] | None = None) -> Path:
     """A compact copy of a dataset to keep in version control: garment vertices as
     float16 (0.5 mm steps at 1 m, well below a drape's noise), everything else as it
-    is. The copy is a dataset of its own: it loads, trains and resumes like the original."""
+    is. The copy is a dataset of its own: it loads, trains and resumes like the original.
+    `splits` keeps only the samples of those splits (e.g. the held-out bodies a model is
+    judged on, shipped with it)."""
     import shutil
 
     from tryon.io.atomic import atomic_write, claim_work_dir
@@ -127,13 +129,28 @@ def pack_dataset(src: str | Path, dst: str | Path, force: bool = False) -> Path:
     src = Path(src)
     manifest = Manifest.read(src)
     store = ShardStore(src, manifest)
+    files = sorted(store.shards.glob("*.npz")) + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
+    if not files:
+        raise DatasetError(f"{src} holds no samples to pack")
+    if splits is not None:
+        known = set()
+        for f in files:
+            known |= set(np.atleast_1d(read_npz(f, "dataset file")["split"]).astype(str))
+        unknown = sorted(set(splits) - known)
+        if unknown:
+            raise DatasetError(f"{src} has no samples in the split(s) {', '.join(unknown)}; it has {', '.join(sorted(known))}")
     out = claim_work_dir(dst, force=force)
     shutil.copytree(src / "references", out / "references")
     (out / "manifest.json").write_text((src / "manifest.json").read_text())
-    files = sorted(store.shards.glob("*.npz")) + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
     for f in files:
         arrays = read_npz(f, "dataset file")
         arrays["x"] = arrays["x"].astype(np.float16)
+        if splits is not None:
+            keep = np.isin(np.asarray(arrays["split"]).astype(str), splits)
+            if not keep.any():
+                continue
+            if np.ndim(arrays["split"]) > 0:  # a shard: samples stacked along the first axis
+                arrays = {k: v[keep] for k, v in arrays.items()}
         target = out / f.relative_to(src)
         target.parent.mkdir(parents=True, exist_ok=True)
         with atomic_write(target, "wb") as fh:

@@ -178,6 +178,16 @@ def shipped_model_path(garment: str) -> Path:
     return MODELS_DIR / f"{garment}.npz"
 
 
+def shipped_eval_data_path(garment: str = "tshirt") -> Path:
+    """The held-out samples (test and extrapolation splits, `tryon dataset pack --splits`)
+    of the data the shipped model was trained on: `tryon bench learned` judges it on them
+    by default."""
+    path = MODELS_DIR / f"{garment}-eval"
+    if not (path / "manifest.json").is_file():
+        raise ModelError(f"no held-out drapes ship with the {garment!r} model; give tryon bench learned --data DATASET")
+    return path
+
+
 def load_shipped(garment: str = "tshirt") -> DrapeModel:
     path = shipped_model_path(garment)
     if not path.is_file():
@@ -191,4 +201,4 @@ def timestamp() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
-__all__ = ["DrapeModel", "ModelError", "load_shipped", "shipped_model_path"]
+__all__ = ["DrapeModel", "ModelError", "load_shipped", "shipped_eval_data_path", "shipped_model_path"]
