@@ -123,6 +123,19 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
         assert r["simulation_s"] > 0 and r["inference_ms"] > 0
     refined = [r for r in recs if r["method"] == "learned+refine"]
     assert all(r["interpenetration_pct"] == 0 and r["refine_s"] > 0 for r in refined)
+    if any(r["split"] == "test" for r in recs):  # learned, refined and simulated side by side
+        from PIL import Image
+
+        assert Image.open(tmp_path / "bench-comparison.png").size[0] > 3 * 400
+
+    # the held-out drapes alone (what ships with a model): no training split for the baselines
+    held = tmp_path / "held-out"
+    assert main(["dataset", "pack", str(tiny), "--out", str(held), "--splits", *sorted({r["split"] for r in recs})]) == 0
+    assert main(["bench", "learned", "--data", str(held), "--model", str(tmp_path / "m" / "model.npz"), "--quick",
+                 "--json", str(tmp_path / "held.json")]) == 0
+    held_out = json.loads((tmp_path / "held.json").read_text())
+    assert {r["method"] for r in held_out["records"]} == {"learned", "learned+refine", "skinning"}
+    assert "--data" in held_out["baselines"]
 
 
 def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tiny, tmp_path, capsys):
