@@ -154,6 +154,9 @@ def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tin
 
     assert Image.open(out / "sizes.png").size[0] > 1000
     assert "recommended size" in capsys.readouterr().out
+    assert main(["size", "--height-cm", "165", "--weight-kg", "62", "--gender", "female", "--workers", "2",
+                 "--out", str(tmp_path / "parallel-learned")]) == 2
+    assert "--method simulate" in capsys.readouterr().err and not (tmp_path / "parallel-learned").exists()
 
 
 def test_ablations_take_one_feature_away_each_and_are_judged_alike(tiny, tmp_path):
@@ -202,3 +205,19 @@ def test_self_correction_labels_more_bodies_by_refinement_and_trains_on_both(tin
     m = train_drape([tiny, store.folder], tmp_path / "m2", TrainConfig(epochs=1, batch=2), progress=False)
     assert m.card["samples"]["train"] == len(both.rows("train"))
     assert "refined" in (tmp_path / "m2" / "MODEL_CARD.md").read_text()
+
+
+@pytest.mark.ray
+def test_simulated_sizes_drape_as_ray_tasks_like_in_process():
+    from tryon.body.fit import Measurements
+    from tryon.drape import DrapeRequest
+    from tryon.learn.size import simulated_drapes
+
+    body = Measurements(height_cm=170, weight_kg=64, gender="female")
+    requests = [DrapeRequest(body, garment="tshirt", size=s, edge_length=0.03, allow_tight=True) for s in ("S", "M")]
+    here = simulated_drapes(requests[:1])
+    on_ray = simulated_drapes(requests, workers=2)
+    assert [r.request.size for r in on_ray] == ["S", "M"] and len(on_ray[1].x) > len(on_ray[0].x) * 0.9
+    # Ray runs torch on one thread, this process maybe on two: the same drape up to chaotic rounding
+    gap = np.linalg.norm(on_ray[0].x - here[0].x, axis=1)
+    assert np.median(gap) < 0.002 and all(r.metrics["penetration_pct"] == 0 for r in on_ray)

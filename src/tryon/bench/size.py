@@ -6,7 +6,8 @@ learned model's drapes (learned + refinement, the default of `tryon size`) and f
 simulator's drapes of every size (`method="simulate"`). Each record holds both sizes,
 whether they agree, both wall times (body fit included) and every size's torso ease and
 overstretched area under each method. The simulated side is the slow one (one full drape
-per size), so bodies are finished one at a time and kept: a stopped bench resumes.
+per size; the sizes run as Ray tasks on `workers` CPUs), so bodies are finished one at a
+time and kept: a stopped bench resumes.
 """
 
 from __future__ import annotations
@@ -32,19 +33,19 @@ def _summary(rec: dict) -> dict:
                                   "max_strain_pct": j["max_strain_pct"]} for j in rec["sizes"]}}
 
 
-def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str | None = None) -> dict:
+def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str | None = None, workers: int = 2) -> dict:
     """Both recommendations for one body."""
     from tryon.learn.size import size_recommendation
 
     body = Measurements(height_cm=height_cm, weight_kg=weight_kg, gender=gender)
     learned, _ = size_recommendation(body, method="learned", refine=True, model_path=model_path)
     sizes = list(learned["sizes"][i]["size"] for i in range(len(learned["sizes"])))
-    simulated, _ = size_recommendation(body, method="simulate", model_path=model_path, sizes=sizes)
+    simulated, _ = size_recommendation(body, method="simulate", model_path=model_path, sizes=sizes, workers=workers)
     return {"gender": gender, "height_cm": height_cm, "weight_kg": weight_kg,
             "bmi": weight_kg / (height_cm / 100) ** 2, "sizes": sizes,
             "recommended_learned": learned["recommended"], "recommended_simulated": simulated["recommended"],
             "agree": learned["recommended"] == simulated["recommended"],
-            "learned_s": learned["wall_s"], "simulated_s": simulated["wall_s"],
+            "learned_s": learned["wall_s"], "simulated_s": simulated["wall_s"], "simulated_workers": workers,
             "learned": _summary(learned), "simulated": _summary(simulated)}
 
 

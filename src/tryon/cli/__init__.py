@@ -137,9 +137,15 @@ def _how(rep: dict) -> str:
 def _cmd_size(args: argparse.Namespace) -> int:
     from tryon.learn.size import size_recommendation, write_size_outputs
 
+    if args.workers < 1:
+        raise TryonError(f"--workers must be at least 1, got {args.workers}")
+    if (args.workers > 1 or args.ray_address) and args.method != "simulate":
+        raise TryonError("--workers and --ray-address drape the sizes in parallel with --method simulate; a learned "
+                         "drape takes seconds")
     out = check_output_dir(args.out, force=args.force)
     rec, results = size_recommendation(_measurements(args), garment=args.garment, fabric=args.fabric, method=args.method,
-                                       refine=not args.no_refine, model_path=args.model, sizes=args.sizes)
+                                       refine=not args.no_refine, model_path=args.model, sizes=args.sizes,
+                                       workers=args.workers, ray_address=args.ray_address)
     write_size_outputs(rec, results, out, force=args.force)
     print(f"recommended size: {rec['recommended']} ({rec['method']}, {rec['wall_s']:.1f} s)")
     for line in rec["reasons"]:
@@ -437,6 +443,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="predict each size's drape (refined by the simulator), or simulate it (minutes)")
     z.add_argument("--no-refine", action="store_true", help="learned: skip the simulator's refinement")
     z.add_argument("--model", help="a draping model file instead of the shipped one")
+    z.add_argument("--workers", type=int, default=1,
+                   help="simulate: drape this many sizes at once as Ray tasks (a local Ray; one CPU each)")
+    z.add_argument("--ray-address", help="simulate: drape the sizes on this Ray cluster")
     z.add_argument("--out", default="out/size", help="output directory (size.json, sizes.png)")
     z.add_argument("--quiet", action="store_true")
     z.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")

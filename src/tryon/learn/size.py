@@ -83,10 +83,40 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     return best["size"], reasons
 
 
+def _simulated_task(req: DrapeRequest) -> DrapeResult:
+    from tryon.drape import drape
+    from tryon.parallel.executors import one_thread_per_worker
+
+    one_thread_per_worker()
+    return drape(req, progress=False)
+
+
+def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address: str | None = None) -> list[DrapeResult]:
+    """`tryon drape` of every request: in this process, or as Ray tasks (one CPU each) when
+    `workers` > 1 or a cluster address is given."""
+    from tryon.drape import drape
+
+    if workers <= 1 and not ray_address:
+        return [drape(req, progress=False) for req in requests]
+    from tryon.parallel.executors import connect_ray
+
+    started = connect_ray(ray_address, workers)
+    import ray
+
+    try:
+        task = ray.remote(num_cpus=1, max_retries=1)(_simulated_task)
+        return ray.get([task.remote(req) for req in requests])
+    finally:
+        if started:
+            ray.shutdown()
+
+
 def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str = "gray-interlock",
                         method: str = "learned", refine: bool = True, model_path: str | None = None,
-                        sizes: list[str] | None = None) -> tuple[dict, list[DrapeResult]]:
-    """(the recommendation as a dict, the drape of every size)."""
+                        sizes: list[str] | None = None, workers: int = 1,
+                        ray_address: str | None = None) -> tuple[dict, list[DrapeResult]]:
+    """(the recommendation as a dict, the drape of every size). `method="simulate"` drapes
+    the sizes as Ray tasks when `workers` > 1 or `ray_address` names a cluster."""
     from tryon.learn.drape import learned_drape
     from tryon.learn.model import DrapeModel, load_shipped
 
@@ -102,21 +132,18 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
     DrapeRequest(body, garment=garment, size=sizes[0], fabric=fabric).validate()
     person = fit_body(body)
     fit_s = time.perf_counter() - t0
-    results = []
-    for size in sizes:
-        # a size far too small is judged by how it strains, not refused
-        req = DrapeRequest(body, garment=garment, size=size, fabric=fabric, allow_tight=True)
-        if method == "learned":
-            results.append(learned_drape(req, refine=refine, person=person, model=model))
-        else:
-            from tryon.drape import drape
-
-            results.append(drape(req, progress=False))
+    # a size far too small is judged by how it strains, not refused
+    requests = [DrapeRequest(body, garment=garment, size=size, fabric=fabric, allow_tight=True) for size in sizes]
+    if method == "learned":
+        results = [learned_drape(req, refine=refine, person=person, model=model) for req in requests]
+    else:
+        results = simulated_drapes(requests, workers, ray_address)
     judged = [judge_size(s, r) for s, r in zip(sizes, results)]
     best, reasons = recommend(judged)
     return {"recommended": best, "reasons": reasons, "garment": garment, "fabric": fabric,
             "method": method + ("+refine" if method == "learned" and refine else ""), "body": results[0].person.report(),
             "sizes": judged, "notes": results[0].metrics.get("notes", []), "fit_body_s": fit_s,
+            "workers": workers if method == "simulate" else 1,
             "wall_s": time.perf_counter() - t0}, results
 
 
