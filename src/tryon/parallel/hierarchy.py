@@ -337,7 +337,7 @@ GRID_FACTOR = 2.0
 # The coarse garment is its pattern at 2.5x the fine edge length, but its edges stay within
 # COARSE_GARMENT_EDGE (a coarser garment's chords cut deep into the body) and at least
 # 1.5x the fine ones; it steps four fine steps at once against the body near it. Measured
-# on the bench walk (1 cm T-shirt): 1304 coarse vertices for 8201 fine ones and K about 11,
+# on the bench walk (1 cm T-shirt): 1304 coarse vertices for 8201 fine ones and K 13,
 # against 3646 and K 3.7 at 1.5x and two fine steps (docs/PARALLEL.md).
 GARMENT_FACTOR, GARMENT_MIN_FACTOR, COARSE_GARMENT_EDGE = 2.5, 1.5, 0.045
 GARMENT_DT_RATIO = 4
@@ -359,7 +359,8 @@ def build_hierarchy(scene: Scene, level: str = "auto", factor: float | None = No
     level and the fine one its midpoint subdivision (exact linear upsampling; any mesh).
     `"auto"` coarsens when it can and subdivides otherwise. `factor` defaults to 2 for
     grids and to `garment_factor` of the drape's edge length for garments. The fine level
-    runs at the scene's dt, the coarse one at `dt_ratio` times it (None: `GARMENT_DT_RATIO` for garment animations, 1 otherwise).
+    runs at the scene's dt, the coarse one at `dt_ratio` times it (None: `GARMENT_DT_RATIO`
+    for garment animations, 1 otherwise).
     `obstacle_cell` (m) replaces the coarse garment's body by a decimated, inflated proxy
     near the garment (`tryon.parallel.proxy`; e.g. 0.03, which measured worse: see
     docs/PARALLEL.md); "auto" (and "crop") keeps the real body's triangles within
