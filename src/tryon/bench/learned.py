@@ -43,7 +43,9 @@ def _refined(model, data, judge, learned) -> tuple[np.ndarray, float, float]:
 
 
 def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: str | Path | None = None,
-                      quick: bool = False) -> dict:
+                      quick: bool = False, per_split: int | None = None) -> dict:
+    """Judge every method on the held-out splits (at most `per_split` drapes of each, evenly
+    spread; `quick`: 6) and write the records to `json_path`."""
     from tryon.dataset.loading import load_drape_dataset
     from tryon.learn.baselines import NearestNeighbour, TailorNetPCA
     from tryon.learn.data import training_set
@@ -74,8 +76,9 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
     picture = None
     for split in SPLITS:
         sub = ts.subset(ts.split == split)
-        if quick:
-            sub = sub.subset(np.arange(min(6, len(sub.rows))))
+        limit = 6 if quick else per_split
+        if limit is not None and len(sub.rows) > limit:  # evenly spread over the split's bodies and sizes
+            sub = sub.subset(np.unique(np.linspace(0, len(sub.rows) - 1, limit).round().astype(int)))
         if len(sub.rows) == 0:
             continue
         judge = Judge(data, sub, model)
@@ -90,7 +93,7 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         for r in rows.values():
             r["error_vs_skinning"] = r["mean_error_cm"] / rows["skinning"]["mean_error_cm"]
         records.extend(rows.values())
-    out = {"bench": "learned", "data": str(data_dir), "model": str(model_path or "shipped"),
+    out = {"bench": "learned", "data": str(data_dir), "model": str(model_path or "shipped"), "per_split": per_split,
            "baselines": sorted(baselines) if baselines else "nearest and tailornet-pca need the dataset's training "
                                                            "split: give --data DATASET",
            "model_card": {k: model.card.get(k) for k in ("trained", "samples", "best_epoch", "metrics")},

@@ -293,6 +293,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "learned":
         from tryon.bench.learned import run_learned_bench
 
+        if args.per_split is not None and args.per_split < 1:
+            raise TryonError(f"--per-split must be at least 1, got {args.per_split}")
         data = args.data
         if not data:
             if args.model:
@@ -301,7 +303,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             from tryon.learn.model import shipped_eval_data_path
 
             data = str(shipped_eval_data_path("tshirt"))
-        run_learned_bench(args.json, data, model_path=args.model, quick=args.quick)
+        run_learned_bench(args.json, data, model_path=args.model, quick=args.quick, per_split=args.per_split)
         return 0
     if args.what == "size":
         from tryon.bench.size import run_size_bench
@@ -501,6 +503,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged (learned: default "
                                   "the shipped model's held-out drapes); kdsm: the pose dataset")
     b.add_argument("--model", help="learned, size: a model file instead of the shipped one")
+    b.add_argument("--per-split", type=int, metavar="N",
+                   help="learned: judge at most N drapes of each held-out split, evenly spread (refinement takes seconds each)")
     b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm), one per method")
     b.add_argument("--drape", help="kdsm: a drape of the models' garment to animate against the simulator")
     b.add_argument("--motion", help="kdsm: the held-out motion (.npz/.bvh; default: random key poses of an unused seed)")
