@@ -49,6 +49,19 @@ def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str 
             "learned": _summary(learned), "simulated": _summary(simulated)}
 
 
+def _apply_current_rule(rec: dict) -> None:
+    """Both recommendations again from the stored per-size numbers, by the rule as it is now
+    (a kept body may have been judged under an earlier rule: nothing is draped again)."""
+    from tryon.learn.size import recommend
+
+    for method in ("learned", "simulated"):
+        sizes = rec[method]["sizes"]
+        judged = [{"size": k, "fits": sizes[k]["fits"], "torso_ease_cm": sizes[k]["torso_ease_cm"],
+                   "overstrained_area_pct": sizes[k]["overstrained_area_pct"], "why_not": []} for k in rec["sizes"]]
+        rec[method]["recommended"] = rec[f"recommended_{method}"] = recommend(judged)[0]
+    rec["agree"] = rec["recommended_learned"] == rec["recommended_simulated"]
+
+
 def run_size_bench(json_path: str, model_path: str | None = None, quick: bool = False) -> list[dict]:
     """Run the bench (bodies finished earlier, kept in `<json>.bodies/`, are reused), print
     a table and write the records."""
@@ -65,6 +78,7 @@ def run_size_bench(json_path: str, model_path: str | None = None, quick: bool = 
             tmp = path.with_suffix(".tmp")
             tmp.write_text(json.dumps(rec, indent=2))
             tmp.replace(path)
+        _apply_current_rule(rec)
         records.append(rec)
         print(f"{gender:<6} {height} cm / {weight} kg (BMI {rec['bmi']:.1f}): learned {rec['recommended_learned']} "
               f"in {rec['learned_s']:.1f} s, simulated {rec['recommended_simulated']} in {rec['simulated_s']:.0f} s"

@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import torch
 
 from tryon.body.pose import BodyPose
 from tryon.drape.dress import DressedGarment, cloth_on_body
@@ -31,17 +32,21 @@ def refine_drape(x: np.ndarray, garment: DressedGarment, body: BodyPose, fabric:
     from tryon.sim.collision import count_intersections, push_outside
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import SettleTest, run
-    from tryon.sim.model import Control
+    from tryon.sim.model import ClothState, Control
     from tryon.sim.obstacles import Obstacle
 
     t0 = time.perf_counter()
     x0, moved, _ = push_outside(np.asarray(x, np.float64), body.vertices, body.faces, thickness)
-    model = cloth_on_body(garment.cloth_mesh(x0), fabric, Obstacle("body", body.vertices, body.faces), thickness,
+    # the model is built on the garment's own drape and the run starts from the prediction:
+    # pushing out can leave a triangle degenerate (three vertices on one body edge), which a
+    # state may be but a mesh may not
+    model = cloth_on_body(garment.cloth_mesh(), fabric, Obstacle("body", body.vertices, body.faces), thickness,
                           friction=friction, regions=regions)
+    start = ClothState(torch.from_numpy(x0), torch.zeros(x0.shape, dtype=torch.float64), 0.0)
     crossings, _ = count_intersections(x0, model.faces.numpy(), model.edges.numpy(), body.vertices, body.faces,
                                        model.obstacles.edges)
     at_rest = SettleTest(rest_speed, after=3)
-    outcome = run(ImplicitEulerSolver(model), model.initial_state(), dt, until=max_steps, observers=[at_rest],
+    outcome = run(ImplicitEulerSolver(model), start, dt, until=max_steps, observers=[at_rest],
                   control=Control(air_damping=SETTLE_AIR_DAMPING))
     return outcome.state.x.numpy(), {"refine_steps": outcome.step, "refine_final_speed": at_rest.speed,
                                      "pushed_out_vertices": int(moved.sum()), "start_self_crossings": int(crossings),

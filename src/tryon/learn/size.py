@@ -12,6 +12,7 @@ and `sizes.png` (each size's strain map, front and back)."""
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -20,11 +21,14 @@ import numpy as np
 from tryon.body.fit import Measurements, fit_body
 from tryon.drape.pipeline import DrapeRequest, DrapeResult
 from tryon.errors import TryonError
+from tryon.garment.drafts import Ease
 
 OVERSTRAIN = 0.10
 MAX_OVERSTRAINED_PCT = 10.0
 MIN_EASE_CM = 0.5
-TARGET_EASE_CM = 4.0
+# A regular fit: the draft's own chest ease (10 cm of girth) spread round the body, about
+# 1.6 cm off the skin; the fit a size has on the body it was drafted for.
+TARGET_EASE_CM = 100.0 * Ease().chest / (2.0 * math.pi)
 TORSO = ("front", "back")
 
 
@@ -70,7 +74,7 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
         last = judged[-1]
         return last["size"], [f"no size fits: even {last['size']} does not, since " + "; ".join(last["why_not"])]
     best = min(fitting, key=lambda j: abs(j["torso_ease_cm"] - TARGET_EASE_CM))
-    reasons = [f"{best['size']}: torso ease {best['torso_ease_cm']:.1f} cm (a regular fit is about {TARGET_EASE_CM:.0f} cm), "
+    reasons = [f"{best['size']}: torso ease {best['torso_ease_cm']:.1f} cm (a regular fit is about {TARGET_EASE_CM:.1f} cm), "
                f"{best['overstrained_area_pct']:.0f} % of the area overstretched"]
     for j in judged:
         if j is best:
