@@ -221,3 +221,16 @@ def test_simulated_sizes_drape_as_ray_tasks_like_in_process():
     # Ray runs torch on one thread, this process maybe on two: the same drape up to chaotic rounding
     gap = np.linalg.norm(on_ray[0].x - here[0].x, axis=1)
     assert np.median(gap) < 0.002 and all(r.metrics["penetration_pct"] == 0 for r in on_ray)
+
+
+def test_a_size_the_simulator_cannot_drape_is_judged_as_not_fitting():
+    from tryon.learn.size import TARGET_EASE_CM, recommend, undrapeable
+
+    failed = undrapeable("M", "draping tshirt makes no progress: the collision response failed; 332 impacts")
+    assert not failed["fits"] and "could not drape it (draping tshirt makes no progress" in failed["why_not"][0]
+    assert "332 impacts" not in failed["why_not"][0]
+    loose = {"size": "L", "fits": True, "why_not": [], "torso_ease_cm": TARGET_EASE_CM + 0.5, "overstrained_area_pct": 1.0}
+    best, reasons = recommend([failed, loose])
+    assert best == "L" and any("M does not fit: the simulator could not drape it" in r for r in reasons)
+    best, reasons = recommend([failed])
+    assert best == "M" and "no size fits" in reasons[0]

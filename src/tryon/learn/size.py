@@ -87,21 +87,30 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     return best["size"], reasons
 
 
-def _simulated_task(req: DrapeRequest) -> DrapeResult:
+def _drape_or_reason(req: DrapeRequest) -> DrapeResult | str:
+    """`tryon drape` of the request, or why the simulator could not drape it (a size far
+    too small for the body)."""
     from tryon.drape import drape
+    from tryon.errors import SimulationError
+
+    try:
+        return drape(req, progress=False)
+    except SimulationError as exc:
+        return str(exc)
+
+
+def _simulated_task(req: DrapeRequest) -> DrapeResult | str:
     from tryon.parallel.executors import one_thread_per_worker
 
     one_thread_per_worker()
-    return drape(req, progress=False)
+    return _drape_or_reason(req)
 
 
-def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address: str | None = None) -> list[DrapeResult]:
-    """`tryon drape` of every request: in this process, or as Ray tasks (one CPU each) when
-    `workers` > 1 or a cluster address is given."""
-    from tryon.drape import drape
-
+def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address: str | None = None) -> list[DrapeResult | str]:
+    """`tryon drape` of every request (or why it could not be draped): in this process, or
+    as Ray tasks (one CPU each) when `workers` > 1 or a cluster address is given."""
     if workers <= 1 and not ray_address:
-        return [drape(req, progress=False) for req in requests]
+        return [_drape_or_reason(req) for req in requests]
     from tryon.parallel.executors import connect_ray
 
     started = connect_ray(ray_address, workers)
@@ -115,10 +124,18 @@ def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address
             ray.shutdown()
 
 
+def undrapeable(size: str, reason: str) -> dict:
+    """The judgement of a size the simulator could not drape on the body."""
+    nan = float("nan")
+    return {"size": size, "fits": False, "why_not": [f"the simulator could not drape it ({reason.split(';')[0]})"],
+            "torso_ease_cm": nan, "overstrained_area_pct": nan, "max_strain_pct": nan, "penetration_pct": nan,
+            "regions": {}, "timings": {}}
+
+
 def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str = "gray-interlock",
                         method: str = "learned", refine: bool = True, model_path: str | None = None,
                         sizes: list[str] | None = None, workers: int = 1,
-                        ray_address: str | None = None) -> tuple[dict, list[DrapeResult]]:
+                        ray_address: str | None = None) -> tuple[dict, list[DrapeResult | str]]:
     """(the recommendation as a dict, the drape of every size). `method="simulate"` drapes
     the sizes as Ray tasks when `workers` > 1 or `ray_address` names a cluster."""
     from tryon.learn.drape import learned_drape
@@ -142,16 +159,19 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
         results = [learned_drape(req, refine=refine, person=person, model=model) for req in requests]
     else:
         results = simulated_drapes(requests, workers, ray_address)
-    judged = [judge_size(s, r) for s, r in zip(sizes, results)]
+    judged = [undrapeable(s, r) if isinstance(r, str) else judge_size(s, r) for s, r in zip(sizes, results)]
+    draped = [r for r in results if not isinstance(r, str)]
+    if not draped:
+        raise TryonError(f"no size of the {garment} could be draped on this body: " + "; ".join(judged[-1]["why_not"]))
     best, reasons = recommend(judged)
     return {"recommended": best, "reasons": reasons, "garment": garment, "fabric": fabric,
-            "method": method + ("+refine" if method == "learned" and refine else ""), "body": results[0].person.report(),
-            "sizes": judged, "notes": results[0].metrics.get("notes", []), "fit_body_s": fit_s,
+            "method": method + ("+refine" if method == "learned" and refine else ""), "body": draped[0].person.report(),
+            "sizes": judged, "notes": draped[0].metrics.get("notes", []), "fit_body_s": fit_s,
             "workers": workers if method == "simulate" else 1,
             "wall_s": time.perf_counter() - t0}, results
 
 
-def sizes_picture(results: list[DrapeResult], judged: list[dict], recommended: str) -> np.ndarray:
+def sizes_picture(results: list[DrapeResult | str], judged: list[dict], recommended: str) -> np.ndarray:
     """Each size's strain map (front and back), labelled, side by side."""
     from PIL import Image, ImageDraw, ImageFont
 
@@ -163,6 +183,8 @@ def sizes_picture(results: list[DrapeResult], judged: list[dict], recommended: s
         font = ImageFont.load_default()
     tiles = []
     for r, j in zip(results, judged):
+        if isinstance(r, str):  # a size the simulator could not drape
+            continue
         img = fit_map_image(r.body_vertices, r.body_faces, r.x, r.garment.faces, 100.0 * r.strain, vmax=20.0, label="strain %")
         pil = Image.fromarray(img[..., :3])
         mark = " (recommended)" if j["size"] == recommended else ("" if j["fits"] else " (does not fit)")
@@ -173,7 +195,7 @@ def sizes_picture(results: list[DrapeResult], judged: list[dict], recommended: s
     return np.concatenate(tiles, axis=1)
 
 
-def write_size_outputs(rec: dict, results: list[DrapeResult], out: str | Path, force: bool = False) -> Path:
+def write_size_outputs(rec: dict, results: list[DrapeResult | str], out: str | Path, force: bool = False) -> Path:
     from tryon.io.atomic import atomic_output_dir
     from tryon.io.json_safe import dumps_json
     from tryon.render.offscreen import save_png
