@@ -132,25 +132,25 @@ def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: 
     files = sorted(store.shards.glob("*.npz")) + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
     if not files:
         raise DatasetError(f"{src} holds no samples to pack")
-    if splits is not None:
-        known = set()
-        for f in files:
-            known |= set(np.atleast_1d(read_npz(f, "dataset file")["split"]).astype(str))
-        unknown = sorted(set(splits) - known)
-        if unknown:
-            raise DatasetError(f"{src} has no samples in the split(s) {', '.join(unknown)}; it has {', '.join(sorted(known))}")
-    out = claim_work_dir(dst, force=force)
-    shutil.copytree(src / "references", out / "references")
-    (out / "manifest.json").write_text((src / "manifest.json").read_text())
+    packed, known = [], set()
     for f in files:
         arrays = read_npz(f, "dataset file")
         arrays["x"] = arrays["x"].astype(np.float16)
         if splits is not None:
+            known |= set(np.atleast_1d(arrays["split"]).astype(str))
             keep = np.isin(np.asarray(arrays["split"]).astype(str), splits)
             if not keep.any():
                 continue
             if np.ndim(arrays["split"]) > 0:  # a shard: samples stacked along the first axis
                 arrays = {k: v[keep] for k, v in arrays.items()}
+        packed.append((f, arrays))
+    unknown = sorted(set(splits or ()) - known)
+    if unknown:
+        raise DatasetError(f"{src} has no samples in the split(s) {', '.join(unknown)}; it has {', '.join(sorted(known))}")
+    out = claim_work_dir(dst, force=force)
+    shutil.copytree(src / "references", out / "references")
+    (out / "manifest.json").write_text((src / "manifest.json").read_text())
+    for f, arrays in packed:
         target = out / f.relative_to(src)
         target.parent.mkdir(parents=True, exist_ok=True)
         with atomic_write(target, "wb") as fh:
