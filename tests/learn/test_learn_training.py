@@ -139,6 +139,8 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
 
 
 def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tiny, tmp_path, capsys):
+    from tryon.learn.size import TARGET_EASE_CM
+
     train_drape(tiny, tmp_path / "m", TrainConfig(epochs=2, batch=2), progress=False)
     out = tmp_path / "size"
     assert main(["size", "--height-cm", "165", "--weight-kg", "62", "--gender", "female", "--model",
@@ -147,7 +149,14 @@ def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tin
     assert rec["recommended"] in ("S", "M") and rec["reasons"] and rec["method"] == "learned+refine"
     assert [s["size"] for s in rec["sizes"]] == ["S", "M"]
     for s in rec["sizes"]:
-        assert set(s["regions"]) == {"front", "back", "sleeve_L", "sleeve_R"} and s["penetration_pct"] == 0
+        assert set(s["regions"]) == {"front", "back", "sleeve_L", "sleeve_R"}
+    # refined from the largest size down, stopping where smaller sizes cannot be the answer
+    refined = [s for s in rec["sizes"] if s["judged_on"] == "refined drape"]
+    assert refined and refined == rec["sizes"][len(rec["sizes"]) - len(refined):]
+    assert all(s["penetration_pct"] == 0 for s in refined)
+    if len(refined) < len(rec["sizes"]):
+        assert not refined[0]["fits"] or refined[0]["torso_ease_cm"] <= TARGET_EASE_CM
+        assert rec["recommended"] in [s["size"] for s in refined]
     # a bigger size hangs looser on the same body
     assert rec["sizes"][1]["torso_ease_cm"] > rec["sizes"][0]["torso_ease_cm"] - 0.2
     from PIL import Image
@@ -234,3 +243,24 @@ def test_a_size_the_simulator_cannot_drape_is_judged_as_not_fitting():
     assert best == "L" and any("M does not fit: the simulator could not drape it" in r for r in reasons)
     best, reasons = recommend([failed])
     assert best == "M" and "no size fits" in reasons[0]
+
+
+def test_sizes_left_unrefined_are_reported_but_not_recommended():
+    from tryon.learn.size import TARGET_EASE_CM, recommend
+
+    def size(name, fits, ease, judged_on, **more):
+        return {"size": name, "fits": fits, "why_not": [] if fits else ["too tight"], "torso_ease_cm": ease,
+                "overstrained_area_pct": 1.0, "judged_on": judged_on, **more}
+
+    # M fits closer than a regular fit, so S (tighter still) was not refined; its prediction fits
+    # nearer the target by noise, but a prediction is not a candidate next to refined drapes
+    s = size("S", True, TARGET_EASE_CM - 0.1, "prediction", not_refined="smaller than M, which already fits closer")
+    best, reasons = recommend([s, size("M", True, TARGET_EASE_CM - 0.3, "refined drape")])
+    assert best == "M" and any(r.startswith("S was not refined (smaller than M") for r in reasons)
+    # nothing refined (tryon size --no-refine): the predictions are the candidates
+    best, _ = recommend([dict(s, not_refined=None), size("M", True, TARGET_EASE_CM + 2.0, "prediction")])
+    assert best == "S"
+    # the largest refined size does not fit: it is named, with its reason
+    best, reasons = recommend([size("S", False, 0.2, "prediction", not_refined="smaller than M, which does not fit"),
+                               size("M", False, 0.4, "refined drape")])
+    assert best == "M" and reasons[0].startswith("no size fits: even M does not, since too tight")

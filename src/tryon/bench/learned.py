@@ -89,7 +89,7 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         refined = _refined(model, data, judge, methods["learned"])
         rows["learned+refine"] = judge.record("learned+refine", split, *refined)
         if split == "test":
-            picture = comparison_picture(model, judge, methods["learned"][0], refined[0])
+            picture = comparison_picture(model, judge, methods["learned"][0], refined[0], data.manifest.spec["fabric"])
         for r in rows.values():
             r["error_vs_skinning"] = r["mean_error_cm"] / rows["skinning"]["mean_error_cm"]
         records.extend(rows.values())
@@ -110,13 +110,14 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
 ERROR_SCALE_CM = 2.0  # top of the comparison picture's error colours
 
 
-def comparison_picture(model, judge, learned: np.ndarray, refined: np.ndarray) -> np.ndarray:
+def comparison_picture(model, judge, learned: np.ndarray, refined: np.ndarray, fabric: str) -> np.ndarray:
     """The test drape of median learned error, front view: the prediction and the refined
     prediction coloured by each vertex's distance to the simulated drape, and the
-    simulated drape itself, labelled with their mean errors."""
+    simulated drape itself in the fabric's colour, labelled with their mean errors."""
     from PIL import Image, ImageDraw
 
     from tryon.drape.outputs import render_views
+    from tryon.render.appearance import appearance
     from tryon.render.colormap import add_colorbar, label_font, scalar_to_rgb
 
     ts = judge.ts
@@ -127,7 +128,10 @@ def comparison_picture(model, judge, learned: np.ndarray, refined: np.ndarray) -
     panels = []
     for title, x, e in (("learned", learned[i], err["learned"][i]), ("learned + refine", refined[i], err["refined"][i]),
                         ("simulated", ts.truth[i], None)):
-        colors = None if e is None else scalar_to_rgb(e, 0.0, ERROR_SCALE_CM, cmap="turbo")
+        if e is None:
+            colors = np.tile(np.asarray(appearance(fabric).color), (len(x), 1))
+        else:
+            colors = scalar_to_rgb(e, 0.0, ERROR_SCALE_CM, cmap="turbo")
         img = render_views(body.vertices, body.faces, x.astype(float), faces, colors, size=(420, 620), views=("front",))[0]
         pil = Image.fromarray(img[..., :3])
         text = title if e is None else f"{title}: mean {e.mean():.2f} cm"

@@ -7,7 +7,8 @@ simulator's drapes of every size (`method="simulate"`). Each record holds both s
 whether they agree, both wall times (body fit included) and every size's torso ease and
 overstretched area under each method. The simulated side is the slow one (one full drape
 per size; the sizes run as Ray tasks on `workers` CPUs), so bodies are finished one at a
-time and kept: a stopped bench resumes.
+time and their simulated side kept: a stopped bench resumes. The learned side (seconds
+per body) is measured afresh on every run.
 """
 
 from __future__ import annotations
@@ -30,23 +31,30 @@ def _summary(rec: dict) -> dict:
     return {"recommended": rec["recommended"], "wall_s": rec["wall_s"], "fit_body_s": rec["fit_body_s"],
             "sizes": {j["size"]: {"fits": j["fits"], "torso_ease_cm": j["torso_ease_cm"],
                                   "overstrained_area_pct": j["overstrained_area_pct"],
-                                  "max_strain_pct": j["max_strain_pct"]} for j in rec["sizes"]}}
+                                  "max_strain_pct": j["max_strain_pct"], "judged_on": j.get("judged_on", "")}
+                      for j in rec["sizes"]}}
 
 
-def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str | None = None, workers: int = 2) -> dict:
-    """Both recommendations for one body."""
+def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str | None = None, workers: int = 2,
+               kept: dict | None = None) -> dict:
+    """Both recommendations for one body. The simulated side of a `kept` record is reused
+    (minutes per body); the learned side is always measured again (seconds)."""
     from tryon.learn.size import size_recommendation
 
     body = Measurements(height_cm=height_cm, weight_kg=weight_kg, gender=gender)
     learned, _ = size_recommendation(body, method="learned", refine=True, model_path=model_path)
     sizes = list(learned["sizes"][i]["size"] for i in range(len(learned["sizes"])))
-    simulated, _ = size_recommendation(body, method="simulate", model_path=model_path, sizes=sizes, workers=workers)
+    if kept and kept["sizes"] == sizes:
+        simulated, simulated_s, workers = kept["simulated"], kept["simulated_s"], kept["simulated_workers"]
+    else:
+        full, _ = size_recommendation(body, method="simulate", model_path=model_path, sizes=sizes, workers=workers)
+        simulated, simulated_s = _summary(full), full["wall_s"]
     return {"gender": gender, "height_cm": height_cm, "weight_kg": weight_kg,
             "bmi": weight_kg / (height_cm / 100) ** 2, "sizes": sizes,
             "recommended_learned": learned["recommended"], "recommended_simulated": simulated["recommended"],
             "agree": learned["recommended"] == simulated["recommended"],
-            "learned_s": learned["wall_s"], "simulated_s": simulated["wall_s"], "simulated_workers": workers,
-            "learned": _summary(learned), "simulated": _summary(simulated)}
+            "learned_s": learned["wall_s"], "simulated_s": simulated_s, "simulated_workers": workers,
+            "learned": _summary(learned), "simulated": simulated}
 
 
 def _apply_current_rule(rec: dict) -> None:
@@ -57,7 +65,8 @@ def _apply_current_rule(rec: dict) -> None:
     for method in ("learned", "simulated"):
         sizes = rec[method]["sizes"]
         judged = [{"size": k, "fits": sizes[k]["fits"], "torso_ease_cm": sizes[k]["torso_ease_cm"],
-                   "overstrained_area_pct": sizes[k]["overstrained_area_pct"], "why_not": []} for k in rec["sizes"]]
+                   "overstrained_area_pct": sizes[k]["overstrained_area_pct"], "why_not": [],
+                   "judged_on": sizes[k].get("judged_on", ""), "not_refined": ""} for k in rec["sizes"]]
         rec[method]["recommended"] = rec[f"recommended_{method}"] = recommend(judged)[0]
     rec["agree"] = rec["recommended_learned"] == rec["recommended_simulated"]
 
@@ -71,13 +80,11 @@ def run_size_bench(json_path: str, model_path: str | None = None, quick: bool = 
     records = []
     for gender, height, weight in tqdm(QUICK_BODIES if quick else BODIES, desc="size bench bodies", disable=None):
         path = keep / f"{gender}-{height}-{weight}.json"
-        if path.exists():
-            rec = json.loads(path.read_text())
-        else:
-            rec = bench_body(gender, height, weight, model_path)
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(rec, indent=2))
-            tmp.replace(path)
+        kept = json.loads(path.read_text()) if path.exists() else None
+        rec = bench_body(gender, height, weight, model_path, kept=kept)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(rec, indent=2))
+        tmp.replace(path)
         _apply_current_rule(rec)
         records.append(rec)
         print(f"{gender:<6} {height} cm / {weight} kg (BMI {rec['bmi']:.1f}): learned {rec['recommended_learned']} "

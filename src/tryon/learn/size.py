@@ -8,7 +8,14 @@ than `MAX_OVERSTRAINED_PCT` of its area is overstretched and no region clings ti
 than `MIN_EASE_CM`; among the sizes that fit, the one whose torso ease is nearest
 `TARGET_EASE_CM` (a regular fit) is recommended. If none fits, the largest is named, with
 the reason. Writes `size.json` (key `recommended`, the reasons and every size's numbers)
-and `sizes.png` (each size's strain map, front and back)."""
+and `sizes.png` (each size's strain map, front and back).
+
+Refinement is the slow part, and slowest on a size far too small (the simulator fights
+the strain). A smaller size is tighter everywhere, so the learned path refines from the
+largest size down and stops as soon as the answer is settled: at a size that does not fit
+(every smaller one is tighter still) or at one that fits closer than a regular fit (every
+smaller one is farther from it). Sizes below the stop keep their prediction's numbers,
+marked `"judged_on": "prediction"`, and are not candidates."""
 
 from __future__ import annotations
 
@@ -69,9 +76,12 @@ def judge_size(size: str, result: DrapeResult) -> dict:
 
 
 def recommend(judged: list[dict]) -> tuple[str, list[str]]:
-    fitting = [j for j in judged if j["fits"]]
+    """(the recommended size, the reasons). Sizes judged on the refined or simulated drape
+    are the candidates; sizes judged on a prediction only count when nothing was refined."""
+    settled = [j for j in judged if j.get("judged_on") != "prediction"] or judged
+    fitting = [j for j in settled if j["fits"]]
     if not fitting:
-        last = judged[-1]
+        last = settled[-1]
         return last["size"], [f"no size fits: even {last['size']} does not, since " + "; ".join(last["why_not"])]
     best = min(fitting, key=lambda j: abs(j["torso_ease_cm"] - TARGET_EASE_CM))
     reasons = [f"{best['size']}: torso ease {best['torso_ease_cm']:.1f} cm (a regular fit is about {TARGET_EASE_CM:.1f} cm), "
@@ -79,7 +89,11 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     for j in judged:
         if j is best:
             continue
-        if j["fits"]:
+        if j.get("judged_on") == "prediction" and settled is not judged:
+            verdict = "does not fit (" + "; ".join(j["why_not"]) + ")" if j["why_not"] else "fits"
+            reasons.append(f"{j['size']} was not refined ({j['not_refined']}); its prediction {verdict}, "
+                           f"torso ease {j['torso_ease_cm']:.1f} cm")
+        elif j["fits"]:
             reasons.append(f"{j['size']} also fits, {'looser' if j['torso_ease_cm'] > best['torso_ease_cm'] else 'closer'}: "
                            f"torso ease {j['torso_ease_cm']:.1f} cm")
         else:
@@ -124,6 +138,38 @@ def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address
             ray.shutdown()
 
 
+def learned_sizes(requests: list[DrapeRequest], person, model, refine: bool = True) -> tuple[list[DrapeResult], list[dict]]:
+    """(the drape, the judgement) of every size of `requests` (smallest first): with
+    `refine`, refined from the largest down until the answer is settled (the module's
+    docstring says when), the sizes below that predicted only; else every size predicted."""
+    from tryon.learn.drape import learned_drape
+
+    def predicted(req: DrapeRequest) -> tuple[DrapeResult, dict]:
+        r = learned_drape(req, person=person, model=model)
+        return r, dict(judge_size(req.size, r), judged_on="prediction")
+
+    if not refine:
+        return tuple(map(list, zip(*[predicted(req) for req in requests])))
+    results, judged = [None] * len(requests), [None] * len(requests)
+    for k in reversed(range(len(requests))):
+        results[k] = learned_drape(requests[k], refine=True, person=person, model=model)
+        judged[k] = dict(judge_size(requests[k].size, results[k]), judged_on="refined drape")
+        size = judged[k]["size"]
+        if not judged[k]["fits"]:
+            why = f"smaller than {size}, which does not fit"
+        elif judged[k]["torso_ease_cm"] <= TARGET_EASE_CM:
+            why = f"smaller than {size}, which already fits closer than a regular fit"
+        else:
+            continue
+        for i in range(k):
+            results[i], judged[i] = predicted(requests[i])
+            judged[i]["not_refined"] = why
+            if not judged[k]["fits"]:  # tighter than a size that does not fit
+                judged[i].update(fits=False, why_not=judged[i]["why_not"] or [f"it is {why}"])
+        break
+    return results, judged
+
+
 def undrapeable(size: str, reason: str) -> dict:
     """The judgement of a size the simulator could not drape on the body."""
     nan = float("nan")
@@ -138,7 +184,6 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
                         ray_address: str | None = None) -> tuple[dict, list[DrapeResult | str]]:
     """(the recommendation as a dict, the drape of every size). `method="simulate"` drapes
     the sizes as Ray tasks when `workers` > 1 or `ray_address` names a cluster."""
-    from tryon.learn.drape import learned_drape
     from tryon.learn.model import DrapeModel, load_shipped
 
     if method not in ("learned", "simulate"):
@@ -156,10 +201,11 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
     # a size far too small is judged by how it strains, not refused
     requests = [DrapeRequest(body, garment=garment, size=size, fabric=fabric, allow_tight=True) for size in sizes]
     if method == "learned":
-        results = [learned_drape(req, refine=refine, person=person, model=model) for req in requests]
+        results, judged = learned_sizes(requests, person, model, refine)
     else:
         results = simulated_drapes(requests, workers, ray_address)
-    judged = [undrapeable(s, r) if isinstance(r, str) else judge_size(s, r) for s, r in zip(sizes, results)]
+        judged = [undrapeable(s, r) if isinstance(r, str) else dict(judge_size(s, r), judged_on="simulated drape")
+                  for s, r in zip(sizes, results)]
     draped = [r for r in results if not isinstance(r, str)]
     if not draped:
         raise TryonError(f"no size of the {garment} could be draped on this body: " + "; ".join(judged[-1]["why_not"]))
@@ -188,6 +234,8 @@ def sizes_picture(results: list[DrapeResult | str], judged: list[dict], recommen
         img = fit_map_image(r.body_vertices, r.body_faces, r.x, r.garment.faces, 100.0 * r.strain, vmax=20.0, label="strain %")
         pil = Image.fromarray(img[..., :3])
         mark = " (recommended)" if j["size"] == recommended else ("" if j["fits"] else " (does not fit)")
+        if "not_refined" in j:
+            mark += " (predicted)"
         ImageDraw.Draw(pil).text((12, 12), f"size {j['size']}{mark}: torso ease {j['torso_ease_cm']:.1f} cm", fill=(0, 0, 0), font=font)
         tiles.append(np.asarray(pil))
     h = max(t.shape[0] for t in tiles)
