@@ -114,6 +114,7 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
     assert main(["bench", "learned", "--data", str(tiny), "--model", str(tmp_path / "m" / "model.npz"), "--quick",
                  "--json", str(out)]) == 0
     recs = json.loads(out.read_text())["records"]
+    assert json.loads(out.read_text())["outside_dataset"] == "left out of --quick"  # a simulation per body
     assert {r["method"] for r in recs} == {"learned", "learned+refine", "skinning", "nearest", "tailornet-pca"}
     keys = {"method", "split", "mean_error_cm", "p95_error_cm", "interpenetration_pct", "edge_error_pct", "potential_ratio",
             "inference_ms", "refine_s", "simulation_s"}
@@ -136,6 +137,22 @@ def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path
     held_out = json.loads((tmp_path / "held.json").read_text())
     assert {r["method"] for r in held_out["records"]} == {"learned", "learned+refine", "skinning"}
     assert "--data" in held_out["baselines"]
+
+
+def test_surface_distance_between_two_drapes_counts_either_side_and_ignores_triangulation():
+    from tryon.bench.learned_vs_drape import mean_surface_distance_cm
+
+    def sheet(n: int, z: float):
+        u, v = np.meshgrid(np.linspace(0, 0.3, n), np.linspace(0, 0.3, n), indexing="ij")
+        k = np.arange(n * n).reshape(n, n)
+        a, b, c, d = k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()
+        return np.stack([u.ravel(), v.ravel(), np.full(n * n, z)], 1), np.concatenate([np.stack([a, b, c], 1),
+                                                                                       np.stack([a, c, d], 1)])
+    coarse, fine = sheet(7, 0.0), sheet(19, 0.0)
+    assert mean_surface_distance_cm(*coarse, *fine) < 1e-9  # one surface, two meshes
+    below, above = sheet(11, -0.01), sheet(13, 0.01)  # 1 cm under and over the coarse sheet
+    assert mean_surface_distance_cm(*coarse, *below) == pytest.approx(1.0, abs=1e-6)
+    assert mean_surface_distance_cm(*above, *coarse) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tiny, tmp_path, capsys):

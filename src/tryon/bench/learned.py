@@ -9,6 +9,8 @@ training split here (left out on data without one, such as the held-out drapes t
 with the model). Keys per record: method, split, samples, mean_error_cm,
 p95_error_cm, interpenetration_pct, edge_error_pct, potential_ratio, inference_ms,
 refine_s, simulation_s, and error_vs_skinning (mean error over the skinning baseline's).
+`outside_dataset` holds `tryon drape --method learned --refine` against `tryon drape` on
+people outside the dataset (tryon.bench.learned_vs_drape; not with `quick`).
 `<json>-comparison.png` shows the test drape of median error: learned, refined, simulated."""
 
 from __future__ import annotations
@@ -93,11 +95,15 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         for r in rows.values():
             r["error_vs_skinning"] = r["mean_error_cm"] / rows["skinning"]["mean_error_cm"]
         records.extend(rows.values())
+    from tryon.bench.learned_vs_drape import outside_dataset_records
+
+    outside = "left out of --quick" if quick else outside_dataset_records(model, data.manifest.spec["fabric"])
     out = {"bench": "learned", "data": str(data_dir), "model": str(model_path or "shipped"), "per_split": per_split,
            "baselines": sorted(baselines) if baselines else "nearest and tailornet-pca need the dataset's training "
                                                            "split: give --data DATASET",
            "model_card": {k: model.card.get(k) for k in ("trained", "samples", "best_epoch", "metrics")},
-           "threads": torch.get_num_threads(), "records": records, "wall_s": time.perf_counter() - t0}
+           "threads": torch.get_num_threads(), "records": records, "outside_dataset": outside,
+           "wall_s": time.perf_counter() - t0}
     with atomic_write(json_path) as fh:
         fh.write(dumps_json(out, indent=1))
     if picture is not None:
