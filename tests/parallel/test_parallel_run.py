@@ -224,3 +224,18 @@ def test_a_blend_that_stays_through_the_obstacle_is_replaced_by_the_later_frame(
     monkeypatch.setattr(join, "push_outside", lambda h, y, t: y)
     x, replaced = join._blend(hier, earlier, later, 0.5, 0.0)
     assert replaced and x is later
+
+
+def test_the_bench_serial_baseline_runs_on_one_workers_threads():
+    import numba
+    import torch
+
+    from tryon.parallel.executors import worker_threads
+
+    before = torch.get_num_threads(), numba.get_num_threads()
+    with worker_threads():
+        assert (torch.get_num_threads(), numba.get_num_threads()) == (1, 1)
+    assert (torch.get_num_threads(), numba.get_num_threads()) == before
+    with pytest.raises(RuntimeError), worker_threads():
+        raise RuntimeError("a failing baseline")
+    assert (torch.get_num_threads(), numba.get_num_threads()) == before

@@ -32,6 +32,7 @@ from tryon.io.atomic import atomic_write
 from tryon.parallel.coarse import CoarseRun
 from tryon.parallel.curvature import relative_curvature_error
 from tryon.parallel.driver import ParallelOptions, simulate_time_parallel
+from tryon.parallel.executors import worker_threads
 from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
 from tryon.parallel.join import plain_join
 from tryon.parallel.recovery import RecoveryOptions, oracle_recovery_errors
@@ -119,7 +120,8 @@ def k_probes(motion: str = "walk", edges: tuple[float, ...] = PROBE_EDGES, recov
     for edge in edges:
         scene = animation_scene(bench_drape_dir(edge), motion, dt=0.01, blend_time=0.2, repeat=GARMENT_MOTIONS[motion])
         hier = build_hierarchy(scene)
-        fine, coarse = probe_costs(scene, hier)
+        with worker_threads():
+            fine, coarse = probe_costs(scene, hier)
         start_up = 20 * fine if recovery_s is None else recovery_s
         overlap = int(round(ParallelOptions().crossfade / scene.dt))
         projected = scheduler_predictions(np.full(64, fine), np.full(64, coarse), start_up, scene.name, overlap,
@@ -336,7 +338,8 @@ def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, p
     boundary, the first after it, and two frames later in the cross-fade."""
     from PIL import Image, ImageDraw
 
-    from tryon.drape.outputs import CLOTH, SKIN
+    from tryon.drape.outputs import SKIN
+    from tryon.render.appearance import appearance
     from tryon.render.colormap import add_colorbar, scalar_to_rgb
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
@@ -361,7 +364,7 @@ def render_boundary(scene: Scene, hier: Hierarchy, result, states: np.ndarray, p
             step, before = steps[i], steps[i - 1]
             body = scene.model.obstacles.vertices_at(step * scene.dt)
             if frames is None:
-                cloth = RenderMesh(states[step], faces, color=CLOTH)
+                cloth = RenderMesh(states[step], faces, color=appearance(scene.model.fabric.name).color)
             else:
                 extra = np.linalg.norm((frames[step] - frames[before]) - (states[step] - states[before]), axis=1)
                 cloth = RenderMesh(frames[step], faces, vertex_colors=scalar_to_rgb(1000 * extra, 0.0, POP_MM, "magma"))
@@ -396,9 +399,10 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
     try:
         for scene in bench_scenes(quick, only):
             hier = build_hierarchy(scene)
-            states, fine_costs = serial_run(scene)
+            with worker_threads():  # the serial baseline on as many threads as one worker
+                states, fine_costs = serial_run(scene)
+                coarse = coarse_costs(hier)
             serial_s = float(fine_costs.sum())
-            coarse = coarse_costs(hier)
             last = None
             for p in workers:
                 for partition in (["adaptive", "uniform", "balanced"] if p == max(workers) and p > 1 else ["adaptive"]):

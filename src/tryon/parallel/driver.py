@@ -31,7 +31,7 @@ from tqdm import tqdm
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write, check_output_dir, claim_work_dir
 from tryon.parallel.coarse import CoarseRun
-from tryon.parallel.executors import LocalExecutor, Progress, RayExecutor
+from tryon.parallel.executors import LocalExecutor, Progress, RayExecutor, worker_threads
 from tryon.parallel.hierarchy import Hierarchy, build_hierarchy
 from tryon.parallel.join import join_with_crossfade
 from tryon.parallel.partition import PARTITIONS, AdaptivePartitioner, balanced_cuts, speedup_bounds, uniform_cuts
@@ -344,7 +344,10 @@ def simulate_time_parallel(
     try:
         wall0 = time.perf_counter()
         driver = _Driver(hier, opts, progress, checkpoint_dir, resume, on_progress)
-        segments = driver.run(executor)
+        # the coarse run is small (a thread pool gains nothing on it) and shares the cores
+        # with the workers: more threads would only spin against them
+        with worker_threads():
+            segments = driver.run(executor)
         wall = time.perf_counter() - wall0
     finally:
         executor.close()

@@ -15,7 +15,8 @@ import secrets
 import socket
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 from tryon.errors import SimulationError, TryonError
@@ -210,6 +211,23 @@ class _Board:
     def drain(self) -> list[Progress]:
         out, self.reports = self.reports, []
         return out
+
+
+@contextmanager
+def worker_threads() -> Iterator[None]:
+    """torch and numba on one thread each inside the block, as in a worker (the coarse run
+    beside the workers; a serial baseline that compares with them), the previous counts
+    restored after."""
+    import numba
+    import torch
+
+    threads, kernels = torch.get_num_threads(), numba.get_num_threads()
+    one_thread_per_worker()
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+        numba.set_num_threads(kernels)
 
 
 def one_thread_per_worker() -> None:
