@@ -108,6 +108,15 @@ def test_drape_with_the_learned_method_writes_the_simulated_path_outputs(tiny, t
                  str(tmp_path / "m" / "model.npz"), "--out", str(tmp_path / "xl"), "--quiet"]) == 2
 
 
+def test_the_learned_drape_refuses_a_size_far_too_small_like_the_simulator(capsys, tmp_path):
+    # a 119 cm chest in the shipped model's S: refused before anything is predicted or written
+    assert main(["drape", "--height-cm", "162", "--weight-kg", "95", "--gender", "female", "--size", "S", "--method",
+                 "learned", "--refine", "--out", str(tmp_path / "tight"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "size S is too small for this body" in err and "try size" in err and "--allow-tight" in err
+    assert not (tmp_path / "tight").exists()
+
+
 def test_bench_learned_judges_every_method_on_the_held_out_splits(tiny, tmp_path):
     train_drape(tiny, tmp_path / "m", TrainConfig(epochs=2, batch=2), progress=False)
     out = tmp_path / "bench.json"

@@ -13,7 +13,7 @@ import time
 from tryon.body.fit import fit_body
 from tryon.body.measure import drafting_measurements
 from tryon.body.pose import posed_body
-from tryon.drape.pipeline import DrapeRequest, DrapeResult
+from tryon.drape.pipeline import DrapeRequest, DrapeResult, check_size_fits
 from tryon.errors import TryonError
 
 
@@ -43,6 +43,7 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
     timings["load_model_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     person = person or fit_body(request.body)
+    check_size_fits(request, person)  # a size far too small is refused, as by the simulated path
     target = posed_body(person.shape, "a", drafting_measurements(person.shape)["crotch_height"])
     timings["fit_body_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()
