@@ -81,11 +81,15 @@ def nearest_size(garment: str, girths: dict, gender: str) -> tuple[str, str | No
     return MADE_TO_MEASURE, why
 
 
+def fitted_girths(fit) -> dict:
+    """The chest, waist and hip (cm) a body fit achieved, as `nearest_size` takes them."""
+    return {k: float(fit.achieved[k]) for k in ("chest_cm", "waist_cm", "hip_cm")}
+
+
 def body_girths(body: Body) -> dict:
     from tryon.body.fit import Measurements, fit_body
 
-    fit = fit_body(Measurements(height_cm=body.height_cm, weight_kg=body.weight_kg, gender=body.gender))
-    return {k: float(fit.achieved[k]) for k in ("chest_cm", "waist_cm", "hip_cm")}
+    return fitted_girths(fit_body(Measurements(height_cm=body.height_cm, weight_kg=body.weight_kg, gender=body.gender)))
 
 
 def cells(quick: bool) -> list[tuple[Body, str, str]]:

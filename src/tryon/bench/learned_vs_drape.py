@@ -32,21 +32,20 @@ def mean_surface_distance_cm(a_v: np.ndarray, a_f: np.ndarray, b_v: np.ndarray, 
 
 def outside_body_record(gender: str, height_cm: float, weight_kg: float, model, fabric: str) -> dict:
     """Both drapes of one body and how far apart they are."""
-    from tryon.bench.drape_matrix import nearest_size
+    from tryon.bench.drape_matrix import fitted_girths, nearest_size
     from tryon.body.fit import Measurements, fit_body
     from tryon.drape import drape
     from tryon.drape.pipeline import DrapeRequest
     from tryon.learn.drape import learned_drape
 
     body = Measurements(height_cm=height_cm, weight_kg=weight_kg, gender=gender)
-    fitted = fit_body(body)
-    girths = {k: float(fitted.achieved[k]) for k in ("chest_cm", "waist_cm", "hip_cm")}
-    size = nearest_size(model.garment, girths, gender)[0]
+    t0 = time.perf_counter()
+    person = fit_body(body)  # the learned side's fit, timed with it; it also picks the size
+    size = nearest_size(model.garment, fitted_girths(person), gender)[0]
     if size not in model.sizes:
         raise ValueError(f"the {height_cm} cm / {weight_kg} kg {gender} wears {size}, which the model does not know")
     req = DrapeRequest(body, garment=model.garment, size=size, fabric=fabric)
-    t0 = time.perf_counter()
-    learned = learned_drape(req, refine=True, model=model)
+    learned = learned_drape(req, refine=True, person=person, model=model)
     t1 = time.perf_counter()
     simulated = drape(req, progress=False)
     t2 = time.perf_counter()

@@ -89,7 +89,7 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     for j in judged:
         if j is best:
             continue
-        if j.get("judged_on") == "prediction" and settled is not judged:
+        if j.get("not_refined"):  # predicted only, below where refinement stopped
             verdict = "does not fit (" + "; ".join(j["why_not"]) + ")" if j["why_not"] else "fits"
             reasons.append(f"{j['size']} was not refined ({j['not_refined']}); its prediction {verdict}, "
                            f"torso ease {j['torso_ease_cm']:.1f} cm")
@@ -149,7 +149,8 @@ def learned_sizes(requests: list[DrapeRequest], person, model, refine: bool = Tr
         return r, dict(judge_size(req.size, r), judged_on="prediction")
 
     if not refine:
-        return tuple(map(list, zip(*[predicted(req) for req in requests])))
+        pairs = [predicted(req) for req in requests]
+        return [r for r, _ in pairs], [j for _, j in pairs]
     results, judged = [None] * len(requests), [None] * len(requests)
     for k in reversed(range(len(requests))):
         results[k] = learned_drape(requests[k], refine=True, person=person, model=model)

@@ -22,6 +22,7 @@ import logging
 import shutil
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -344,9 +345,10 @@ def simulate_time_parallel(
     try:
         wall0 = time.perf_counter()
         driver = _Driver(hier, opts, progress, checkpoint_dir, resume, on_progress)
-        # the coarse run is small (a thread pool gains nothing on it) and shares the cores
-        # with the workers: more threads would only spin against them
-        with worker_threads():
+        # beside Ray workers the coarse run (small: a thread pool gains nothing on it) shares
+        # their cores, and more threads would only spin against them; in-process, the
+        # segments run here too and keep the process's threads
+        with worker_threads() if opts.mode != "local" else nullcontext():
             segments = driver.run(executor)
         wall = time.perf_counter() - wall0
     finally:
