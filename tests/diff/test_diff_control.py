@@ -105,3 +105,29 @@ def test_sampling_baseline_spends_its_budget_and_keeps_the_best(task):
     assert res.trajectory.shape[0] == task.steps + 1 and np.isfinite(res.distance_over_size)
     with pytest.raises(TryonError, match="at least 1 sample"):
         sample_search(task, 0)
+
+
+def test_sloped_basket_is_a_hopper_that_catches_a_dropped_cloth():
+    """The sloped variant's basket is an open hopper: a cloth dropped over its opening comes
+    to rest on the sloped walls inside it (with no basket it would fall through, as there is
+    no floor), above the apex and below the rim."""
+    from tryon.diff.control import BASKET_CENTER, BASKET_FLOOR, BASKET_HALF, CLOTH, basket_spec
+    from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.loop import steps
+    from tryon.sim.scene import parse_scene
+
+    spec = basket_spec(5, "sloped")
+    assert [o["type"] for o in spec["obstacles"]] == ["box", "box", "pyramid"]
+    bx, by = BASKET_CENTER
+    spec["cloth"]["grid"]["origin"] = [bx - 0.04 - CLOTH / 2, by - CLOTH / 2, 0.35]
+    spec["duration"] = 1.5
+    scene = parse_scene(spec)
+    state = scene.model.initial_state()
+    for rec in steps(ImplicitEulerSolver(scene.model, scene.options), state, scene.dt, stop=scene.num_steps):
+        state = rec.state
+    x = state.x.numpy()
+    mass = scene.model.mass().detach().numpy()
+    com = (mass[:, None] * x).sum(0) / mass.sum()
+    assert np.abs(com[:2] - np.array(BASKET_CENTER)).max() < BASKET_HALF / 2
+    assert BASKET_FLOOR + 0.05 < com[2] < BASKET_FLOOR + 0.22
+    assert np.linalg.norm(state.v.numpy(), axis=1).max() < 0.2  # at rest on the walls

@@ -26,7 +26,10 @@ that makes the loss 25 % worse than the best returns to the best with half the r
   best `SAMPLING_ELITE` of each setting the next mean and spread), with as many cloth
   simulations as the gradient-trained controllers get.
 
-The ``sloped`` variant adds two tilted panels above the basket.
+The ``sloped`` variant replaces the box basket by a hopper of the same opening and rim
+height whose four walls slope down to a point at the centre of the floor (an open,
+upside-down square pyramid, the scene format's ``pyramid``): cloth that lands on a wall
+slides, and it has to clear the near rim lower down than with upright walls.
 """
 
 from __future__ import annotations
@@ -73,7 +76,7 @@ WAYPOINTS = ((0.5, (0.42, 0.0, 0.9)), (1.0, (BASKET_CENTER[0], BASKET_CENTER[1],
 
 
 def basket_spec(resolution: int = 5, variant: str = "flat", dt: float = 0.025) -> dict:
-    """Scene of the basket task: table, wall, open basket, floor (and sloped panels)."""
+    """Scene of the basket task: table, wall and an open basket, box-shaped (`flat`) or a hopper (`sloped`)."""
     if variant not in VARIANTS:
         raise TryonError(f"unknown basket variant {variant!r}; choose one of {', '.join(VARIANTS)}")
     bx, by = BASKET_CENTER
@@ -82,17 +85,18 @@ def basket_spec(resolution: int = 5, variant: str = "flat", dt: float = 0.025) -
     obstacles = [
         {"type": "box", "name": "table", "center": [0.0, 0.0, TABLE_TOP / 2], "size": [0.5, 0.5, TABLE_TOP]},
         {"type": "box", "name": "wall", "center": [0.42, 0.0, 0.3], "size": [0.04, 0.8, 0.6]},
-        {"type": "box", "name": "basket-floor", "center": [bx, by, BASKET_FLOOR / 2], "size": [2 * h, 2 * h, BASKET_FLOOR]},
-        {"type": "box", "name": "basket-near", "center": [bx - h, by, BASKET_FLOOR + wall_h / 2], "size": [0.02, 2 * h, wall_h]},
-        {"type": "box", "name": "basket-far", "center": [bx + h, by, BASKET_FLOOR + wall_h / 2], "size": [0.02, 2 * h, wall_h]},
-        {"type": "box", "name": "basket-left", "center": [bx, by - h, BASKET_FLOOR + wall_h / 2], "size": [2 * h, 0.02, wall_h]},
-        {"type": "box", "name": "basket-right", "center": [bx, by + h, BASKET_FLOOR + wall_h / 2], "size": [2 * h, 0.02, wall_h]},
     ]
-    if variant == "sloped":
+    if variant == "flat":
         obstacles += [
-            {"type": "plane", "name": "slope-near", "point": [bx - 0.12, by, 0.5], "normal": [-0.6, 0.0, 1.0], "size": 0.16, "divisions": 1},
-            {"type": "plane", "name": "slope-far", "point": [bx + 0.12, by, 0.5], "normal": [0.6, 0.0, 1.0], "size": 0.16, "divisions": 1},
+            {"type": "box", "name": "basket-floor", "center": [bx, by, BASKET_FLOOR / 2], "size": [2 * h, 2 * h, BASKET_FLOOR]},
+            {"type": "box", "name": "basket-near", "center": [bx - h, by, BASKET_FLOOR + wall_h / 2], "size": [0.02, 2 * h, wall_h]},
+            {"type": "box", "name": "basket-far", "center": [bx + h, by, BASKET_FLOOR + wall_h / 2], "size": [0.02, 2 * h, wall_h]},
+            {"type": "box", "name": "basket-left", "center": [bx, by - h, BASKET_FLOOR + wall_h / 2], "size": [2 * h, 0.02, wall_h]},
+            {"type": "box", "name": "basket-right", "center": [bx, by + h, BASKET_FLOOR + wall_h / 2], "size": [2 * h, 0.02, wall_h]},
         ]
+    else:  # sloped: a hopper with the same opening and rim height, its walls meeting at the floor's centre
+        obstacles.append({"type": "pyramid", "name": "basket-hopper", "apex": [bx, by, BASKET_FLOOR],
+                          "rim_size": 2 * h, "height": wall_h})
     return {
         "name": f"basket-{variant}", "dt": dt, "duration": FORCE_TIME + DROP_TIME, "frame_time": 0.1,
         "cloth": {"grid": {"resolution": [resolution, resolution], "size": [CLOTH, CLOTH],
