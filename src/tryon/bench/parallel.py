@@ -9,7 +9,10 @@ coarse seconds per step), the speedup over the serial run against the bounds
 K p / (K + p - 1) and K - K (1 - 1/K)^p, and the relative curvature error at every
 segment start before (upsampled coarse state) and after detail recovery, and the same
 for recovery alone started from the serial run's exact coarse-scale states (what the
-paper's 46 % -> 14 % isolates: the coarse predictor's own shape error is not recovery's).
+paper's 46 % -> 14 % isolates: the coarse predictor's own shape error is not recovery's),
+and the same error of the serial run's twin started 1 um away (`serial_run(perturb=...)`):
+the cloth's own sensitivity, under which no start state can be judged closer to the serial
+run.
 
 The scheduler simulation replays the measured per-step costs (fine, coarse, and a segment's
 start-up: upsampling, crossing checks, recovery, solver set-up),
@@ -26,6 +29,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from tryon.io.atomic import atomic_write
@@ -39,6 +43,7 @@ from tryon.parallel.recovery import RecoveryOptions, oracle_recovery_errors
 from tryon.parallel.partition import balanced_cuts, speedup_bounds, uniform_cuts
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import steps
+from tryon.sim.model import ClothState
 from tryon.sim.scene import Scene, example_scene
 from tryon.io.json_safe import dumps_json
 
@@ -136,13 +141,23 @@ def k_probes(motion: str = "walk", edges: tuple[float, ...] = PROBE_EDGES, recov
     return out
 
 
-def serial_run(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """The serial fine run: states [N+1, n, 3] at every step and seconds per step [N]."""
+SPREAD_PERTURBATION = 1e-6  # m: the start perturbation of the serial run's twin (`serial_run(perturb=...)`)
+
+
+def serial_run(scene: Scene, perturb: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The serial fine run: states [N+1, n, 3] at every step and seconds per step [N]. With
+    `perturb`, its twin: the same run from start positions moved by Gaussian noise of that
+    standard deviation (m, fixed seed), which measures how far two equally valid serial
+    runs drift apart (the floor under any start-state error at a boundary)."""
     solver = ImplicitEulerSolver(scene.model, scene.options)
     state = scene.model.initial_state()
+    if perturb:
+        noise = np.random.default_rng(0).normal(0.0, perturb, tuple(state.x.shape))
+        noise[scene.model.pinned.numpy()] = 0.0
+        state = ClothState(state.x + torch.from_numpy(noise), state.v, state.t)
     xs, seconds = [state.x.numpy().copy()], []
     for rec in tqdm(steps(solver, state, scene.dt, stop=scene.num_steps), total=scene.num_steps,
-                    desc=f"serial {scene.name}", leave=False, disable=None):
+                    desc=f"serial {scene.name}" + (" (perturbed twin)" if perturb else ""), leave=False, disable=None):
         seconds.append(rec.seconds)
         xs.append(rec.state.x.numpy().copy())
     return np.stack(xs), np.asarray(seconds)
@@ -160,10 +175,12 @@ _ORACLE: dict = {}  # (scene, hierarchy fingerprint, step) -> recovery from the 
 LONG_RECOVERY = RecoveryOptions(tolerance=1e-5, max_iterations=10)  # recovery run to 10 iterations
 
 
-def boundary_errors(hier: Hierarchy, segments, states: np.ndarray) -> list[dict]:
+def boundary_errors(hier: Hierarchy, segments, states: np.ndarray, twin: np.ndarray | None = None) -> list[dict]:
     """At every segment start: the relative curvature error against the serial state of the
     run's own start states (coarse predictor + recovery) and of recovery alone from the
     serial run's exact coarse-scale states (`oracle_recovery_errors`, cached per step);
+    the same error and the mean distance (mm) of the serial run's perturbed `twin` there
+    (`serial_spread`, `serial_spread_mm`: what two equally valid serial runs differ by);
     and the pop a viewer sees, the mean jump (mm) from the previous segment's end to this
     segment's start at the same time, next to the serial run's mean motion in one step."""
     model = hier.fine.model
@@ -180,6 +197,9 @@ def boundary_errors(hier: Hierarchy, segments, states: np.ndarray) -> list[dict]
                     "setup_s": s.setup_seconds,
                     "detail_kept": s.recovery.get("detail_kept", 1.0),
                     "serial_step_mm": 1000 * float(np.linalg.norm(states[s.start + 1] - ref, axis=1).mean())})
+        if twin is not None:
+            out[-1].update(serial_spread=relative_curvature_error(model, twin[s.start], ref),
+                           serial_spread_mm=1000 * float(np.linalg.norm(twin[s.start] - ref, axis=1).mean()))
         if prev is not None and prev.end == s.start:
             jump = np.linalg.norm(s.x_start - prev.x_end, axis=1)
             out[-1].update(jump_mm=1000 * float(jump.mean()), jump_max_mm=1000 * float(jump.max()),
@@ -233,12 +253,12 @@ def popping(result, states: np.ndarray) -> dict:
 
 
 def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s: float, workers: int,
-                    partition: str) -> tuple[dict, object]:
+                    partition: str, twin: np.ndarray | None = None) -> tuple[dict, object]:
     opts = ParallelOptions(workers=workers, partition=partition)
     r = simulate_time_parallel(scene, opts, progress=False, hierarchy=hier)
     par = r.summary["parallel"]
     K = par["K"]
-    errors = boundary_errors(hier, r.segments, states)
+    errors = boundary_errors(hier, r.segments, states, twin)
     record = {
         "scene": scene.name, "workers": workers, "partition": partition, "segments": len(r.segments),
         "cuts": par["cuts"], "fine_vertices": hier.fine.model.num_vertices,
@@ -253,6 +273,8 @@ def parallel_record(scene: Scene, hier: Hierarchy, states: np.ndarray, serial_s:
         "curvature_error_exact_coarse_after": _mean([e["exact_coarse_after"] for e in errors if "exact_coarse_after" in e]),
         "curvature_error_exact_coarse_after_10_iterations": _mean([e["exact_coarse_after_10"] for e in errors
                                                                    if "exact_coarse_after_10" in e]),
+        "curvature_error_serial_spread": _mean([e["serial_spread"] for e in errors if "serial_spread" in e]),
+        "serial_spread_mm": _mean([e["serial_spread_mm"] for e in errors if "serial_spread_mm" in e]),
         "boundary_jump_mm": _mean([e["jump_mm"] for e in errors if "jump_mm" in e]),
         "serial_step_mm": _mean([e["serial_step_mm"] for e in errors]),
         **popping(r, states), "crossfade_s": opts.crossfade,
@@ -401,12 +423,13 @@ def run_parallel_bench(json_path: str, quick: bool = False, workers: list[int] |
             hier = build_hierarchy(scene)
             with worker_threads():  # the serial baseline on as many threads as one worker
                 states, fine_costs = serial_run(scene)
+                twin, _ = serial_run(scene, perturb=SPREAD_PERTURBATION)
                 coarse = coarse_costs(hier)
             serial_s = float(fine_costs.sum())
             last = None
             for p in workers:
                 for partition in (["adaptive", "uniform", "balanced"] if p == max(workers) and p > 1 else ["adaptive"]):
-                    rec, res = parallel_record(scene, hier, states, serial_s, p, partition)
+                    rec, res = parallel_record(scene, hier, states, serial_s, p, partition, twin)
                     records.append(rec)
                     last = res if p > 1 and partition == "uniform" else last
                     _print(rec)
@@ -449,7 +472,8 @@ def _print(r: dict) -> None:
           f"{fmt(r['bound_balanced'])}) curvature error {fmt(r['curvature_error_before'])} -> "
           f"{fmt(r['curvature_error_after'])} (exact coarse shape: {fmt(r['curvature_error_exact_coarse_before'])} -> "
           f"{fmt(r['curvature_error_exact_coarse_after'])}, 10 iterations "
-          f"{fmt(r['curvature_error_exact_coarse_after_10_iterations'])}); boundary jump {fmt(r['boundary_jump_mm'])} mm "
+          f"{fmt(r['curvature_error_exact_coarse_after_10_iterations'])}; two serial runs 1 um apart at the start: "
+          f"{fmt(r['curvature_error_serial_spread'])}); boundary jump {fmt(r['boundary_jump_mm'])} mm "
           f"(serial step {fmt(r['serial_step_mm'])} mm); pop per frame {fmt(r['pop_plain_mm'])} -> "
           f"{fmt(r['pop_crossfade_mm'])} mm cross-faded (elsewhere {fmt(r['pop_baseline_mm'])}, serial motion "
           f"{fmt(r['serial_frame_mm'])} mm/frame)")
