@@ -239,3 +239,21 @@ def test_the_bench_serial_baseline_runs_on_one_workers_threads():
     with pytest.raises(RuntimeError), worker_threads():
         raise RuntimeError("a failing baseline")
     assert (torch.get_num_threads(), numba.get_num_threads()) == before
+
+
+def test_bench_twin_starts_a_micrometre_away_and_measures_its_spread(local_run):
+    """The serial run's twin starts from positions moved by ~1 um (pinned vertices stay on
+    their handles); boundary errors against the serial run itself as the twin are zero."""
+    from tryon.bench.parallel import SPREAD_PERTURBATION, boundary_errors, serial_run
+
+    hanging = example_scene("hanging", 6, duration=0.05)
+    states, _ = serial_run(hanging)
+    twin, _ = serial_run(hanging, perturb=SPREAD_PERTURBATION)
+    pinned = hanging.model.pinned.numpy()
+    moved = np.linalg.norm(twin[0] - states[0], axis=1)
+    assert len(pinned) and np.all(moved[pinned] == 0.0)
+    free = np.setdiff1d(np.arange(len(moved)), pinned)
+    assert 0.2e-6 < np.median(moved[free]) < 5e-6
+    serial_states, _ = serial_run(_scene())
+    errors = boundary_errors(local_run.hierarchy, local_run.segments, serial_states, twin=serial_states)
+    assert errors and all(e["serial_spread"] == 0.0 and e["serial_spread_mm"] == 0.0 for e in errors)

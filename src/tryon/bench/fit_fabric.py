@@ -1,16 +1,17 @@
 """`tryon bench fit-fabric`: fabric estimation on motion another simulator produced.
 
 Each observation is a reference run of `tryon bench fidelity` (ARCSim 0.3.1: every run,
-at dt 0.005 and at dt 0.02) with everything but what a camera could give removed: only ``positions``, ``faces``, ``uv``, ``pinned``, ``frame_time``, ``gravity``
-and the wind keys remain (no ``dt``, no handle stiffness, no fabric). `tryon fit-fabric`
-then has to choose its own time step, find that the corners hang from soft handles, and
-estimate the fabric; its errors are measured against the run's ground truth.
+at dt 0.005 and at dt 0.02; `--quick`: the dt 0.005 runs) with everything but what a
+camera could give removed: only ``positions``, ``faces``, ``uv``, ``pinned``,
+``frame_time``, ``gravity`` and the wind keys remain (no ``dt``, no handle stiffness, no
+fabric). `tryon fit-fabric` then has to choose its own time step, find that the corners
+hang from soft handles, and estimate the fabric; its errors are measured against the
+run's ground truth.
 
-`HELD_OUT` fabrics (the seven measured fabrics that have no ARCSim run here; development
-never tuned anything to them) are observed in the same scene as
-`tryon` simulates it with ARCSim's settings (soft handles, explicit wind, dt 0.005): at
-its own time step `tryon` reproduces ARCSim to 0.00-0.12 % (`tryon bench fidelity`), so
-these stand in for ARCSim runs of those fabrics.
+`HELD_OUT` fabrics (the seven measured fabrics that have no ARCSim run here) are observed
+in the same scene as `tryon` simulates it with ARCSim's settings (soft handles, explicit
+wind, dt 0.005): at its own time step `tryon` reproduces ARCSim to 0.00-0.12 % (`tryon
+bench fidelity`), so these stand in for ARCSim runs of those fabrics.
 """
 
 from __future__ import annotations
@@ -66,8 +67,9 @@ def _print_table(records: list[dict]) -> None:
         rows = [r for r in records if r["source"] == source]
         d = 100 * np.array([r["density_error"] for r in rows])
         e = 100 * np.array([r["simulation_error"] for r in rows])
-        print(f"{source} ({len(rows)}): density error {d.mean():.2f} +- {d.std():.2f} %, simulation error "
-              f"{e.mean():.2f} +- {e.std():.2f} % (max {e.max():.2f} %)")
+        spread = (lambda a: a.std(ddof=1) if len(a) > 1 else 0.0)  # noqa: E731 (sample standard deviation)
+        print(f"{source} ({len(rows)}): density error {d.mean():.2f} +- {spread(d):.2f} %, simulation error "
+              f"{e.mean():.2f} +- {spread(e):.2f} % (max {e.max():.2f} %)")
 
 
 def run_fit_fabric_bench(json_path: str, reference: str | None = None, held_out: tuple[str, ...] = HELD_OUT,
@@ -87,10 +89,15 @@ def _run(json_path: str, reference: str | None, held_out: tuple[str, ...], all_s
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for run in chosen:
-            records.append(_fit(run.name, run.obs, run.fabric.name, "ARCSim 0.3.1", folder, fits_dir))
+            records.append(_fit(run.name, run.obs, run.fabric.name, f"ARCSim 0.3.1 at dt {run.obs.dt:g}", folder,
+                                fits_dir))
             print(json.dumps(records[-1]), flush=True)
         scene = next((r for r in runs if r.name == SCENE_RUN), runs[0])
-        for fabric in [f for f in held_out if f not in {r.fabric.name for r in runs}]:
+        with_runs = {r.fabric.name for r in runs}
+        for fabric in held_out:
+            if fabric in with_runs:
+                print(f"{fabric}: has an ARCSim run here, so it is not held out", flush=True)
+                continue
             obs = held_out_observation(scene, fabric)
             records.append(_fit(f"{fabric}_dt{REFERENCE_DT}", obs, fabric, "tryon in ARCSim's scene (held out)", folder,
                                 fits_dir))

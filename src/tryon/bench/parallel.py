@@ -10,7 +10,8 @@ K p / (K + p - 1) and K - K (1 - 1/K)^p, and the relative curvature error at eve
 segment start before (upsampled coarse state) and after detail recovery, and the same
 for recovery alone started from the serial run's exact coarse-scale states (what the
 paper's 46 % -> 14 % isolates: the coarse predictor's own shape error is not recovery's),
-and the same error of the serial run's twin started 1 um away (`serial_run(perturb=...)`):
+and the same error of the serial run's twin, started from positions moved by 1 um of noise
+(`serial_run(perturb=...)`):
 the cloth's own sensitivity, under which no start state can be judged closer to the serial
 run.
 
@@ -472,7 +473,8 @@ def _print(r: dict) -> None:
           f"{fmt(r['bound_balanced'])}) curvature error {fmt(r['curvature_error_before'])} -> "
           f"{fmt(r['curvature_error_after'])} (exact coarse shape: {fmt(r['curvature_error_exact_coarse_before'])} -> "
           f"{fmt(r['curvature_error_exact_coarse_after'])}, 10 iterations "
-          f"{fmt(r['curvature_error_exact_coarse_after_10_iterations'])}; two serial runs 1 um apart at the start: "
+          f"{fmt(r['curvature_error_exact_coarse_after_10_iterations'])}; the serial run's twin "
+          f"({SPREAD_PERTURBATION * 1e6:g} um start noise): "
           f"{fmt(r['curvature_error_serial_spread'])}); boundary jump {fmt(r['boundary_jump_mm'])} mm "
           f"(serial step {fmt(r['serial_step_mm'])} mm); pop per frame {fmt(r['pop_plain_mm'])} -> "
           f"{fmt(r['pop_crossfade_mm'])} mm cross-faded (elsewhere {fmt(r['pop_baseline_mm'])}, serial motion "

@@ -341,7 +341,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "fit-fabric":
         from tryon.bench.fit_fabric import HELD_OUT, run_fit_fabric_bench
 
-        run_fit_fabric_bench(args.json, reference=args.reference, held_out=() if args.quick else HELD_OUT)
+        run_fit_fabric_bench(args.json, reference=args.reference, held_out=() if args.quick else HELD_OUT,
+                             all_steps=not args.quick)
         return 0
     if args.what == "drape" and args.matrix:
         from tryon.bench.drape_matrix import run_drape_matrix

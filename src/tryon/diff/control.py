@@ -2,12 +2,13 @@
 
 The basket task (after Liang, Lin & Koltun 2019, sec. 5.3): a square cloth lies on a
 table; forces on its four corners, applied for `FORCE_TIME` seconds, must lift it over a
-wall and drop it into an open box (the basket) beyond. The score is the distance of the
-cloth's centre of mass to the centre of the basket floor at the end, divided by the
-cloth size (the diagonal of the square; under 0.5 it lies inside the basket).
+wall and drop it into an open basket beyond (a box, or a hopper in the ``sloped``
+variant). The score is the distance of the cloth's centre of mass at the end to the
+basket's lowest centre point (the centre of the box floor, the hopper's apex), divided
+by the cloth size (the diagonal of the square).
 
 The loss is the squared distance of the centre of mass to `WAYPOINTS` (above the wall
-half-way, above the basket at release, on the basket floor at the end) over the cloth
+half-way, above the basket at release, at the basket's lowest centre point at the end) over the cloth
 size squared: the final distance alone pulls the cloth straight into the wall.
 
 Controllers, each optimised with Adam on gradients of that loss (safeguarded: a step
@@ -27,9 +28,10 @@ that makes the loss 25 % worse than the best returns to the best with half the r
   simulations as the gradient-trained controllers get.
 
 The ``sloped`` variant replaces the box basket by a hopper of the same opening and rim
-height whose four walls slope down to a point at the centre of the floor (an open,
-upside-down square pyramid, the scene format's ``pyramid``): cloth that lands on a wall
-slides, and it has to clear the near rim lower down than with upright walls.
+height whose four walls lean inwards down to a point at the box floor's height and centre
+(an open, upside-down square pyramid, the scene format's ``pyramid``): cloth that lands
+on a wall slides down it, and cloth trailing just past the near rim lands on the near
+wall, where a box is open.
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ TABLE_TOP = 0.5
 BASKET_CENTER = (0.85, 0.0)
 BASKET_FLOOR = 0.04
 BASKET_HALF = 0.2
+BASKET_WALL = 0.22  # height of the basket's walls (the hopper's rim) above its floor
 HIDDEN = 32
 SAMPLING_POPULATION = 6  # cross-entropy method: samples per generation
 SAMPLING_ELITE = 2  # the best of each generation set the next mean and spread
@@ -80,19 +83,20 @@ def basket_spec(resolution: int = 5, variant: str = "flat", dt: float = 0.025) -
     if variant not in VARIANTS:
         raise TryonError(f"unknown basket variant {variant!r}; choose one of {', '.join(VARIANTS)}")
     bx, by = BASKET_CENTER
-    h = BASKET_HALF
-    wall_h = 0.22
+    h, wall_h = BASKET_HALF, BASKET_WALL
     obstacles = [
         {"type": "box", "name": "table", "center": [0.0, 0.0, TABLE_TOP / 2], "size": [0.5, 0.5, TABLE_TOP]},
         {"type": "box", "name": "wall", "center": [0.42, 0.0, 0.3], "size": [0.04, 0.8, 0.6]},
     ]
     if variant == "flat":
+        mid = BASKET_FLOOR + wall_h / 2
         obstacles += [
-            {"type": "box", "name": "basket-floor", "center": [bx, by, BASKET_FLOOR / 2], "size": [2 * h, 2 * h, BASKET_FLOOR]},
-            {"type": "box", "name": "basket-near", "center": [bx - h, by, BASKET_FLOOR + wall_h / 2], "size": [0.02, 2 * h, wall_h]},
-            {"type": "box", "name": "basket-far", "center": [bx + h, by, BASKET_FLOOR + wall_h / 2], "size": [0.02, 2 * h, wall_h]},
-            {"type": "box", "name": "basket-left", "center": [bx, by - h, BASKET_FLOOR + wall_h / 2], "size": [2 * h, 0.02, wall_h]},
-            {"type": "box", "name": "basket-right", "center": [bx, by + h, BASKET_FLOOR + wall_h / 2], "size": [2 * h, 0.02, wall_h]},
+            {"type": "box", "name": "basket-floor", "center": [bx, by, BASKET_FLOOR / 2],
+             "size": [2 * h, 2 * h, BASKET_FLOOR]},
+            {"type": "box", "name": "basket-near", "center": [bx - h, by, mid], "size": [0.02, 2 * h, wall_h]},
+            {"type": "box", "name": "basket-far", "center": [bx + h, by, mid], "size": [0.02, 2 * h, wall_h]},
+            {"type": "box", "name": "basket-left", "center": [bx, by - h, mid], "size": [2 * h, 0.02, wall_h]},
+            {"type": "box", "name": "basket-right", "center": [bx, by + h, mid], "size": [2 * h, 0.02, wall_h]},
         ]
     else:  # sloped: a hopper with the same opening and rim height, its walls meeting at the floor's centre
         obstacles.append({"type": "pyramid", "name": "basket-hopper", "apex": [bx, by, BASKET_FLOOR],
@@ -164,11 +168,11 @@ class BasketTask:
         return ((self.com(traj.x[steps]) - points) ** 2).sum() / self.size**2
 
     def score(self, x_final: torch.Tensor) -> tuple[float, bool]:
-        """Final COM distance to the basket floor centre / cloth size, and whether the
-        cloth's centre lies within the basket walls below their top."""
+        """Final COM distance to the basket's lowest centre point / cloth size, and
+        whether the cloth's centre lies within the rim's footprint below its top."""
         c = self.com(x_final.detach())
         ratio = float((c - self.target).norm()) / self.size
-        inside = bool((c[:2] - self.target[:2]).abs().max() < BASKET_HALF and c[2] < BASKET_FLOOR + 0.22)
+        inside = bool((c[:2] - self.target[:2]).abs().max() < BASKET_HALF and c[2] < BASKET_FLOOR + BASKET_WALL)
         return ratio, inside
 
 
@@ -212,7 +216,7 @@ class CornerPolicy(torch.nn.Module):
 
 def point_mass_forces(task: BasketTask, iterations: int = 500) -> tuple[torch.Tensor, int]:
     """Interval parameters optimised for a point of the cloth's mass (no cloth, no
-    obstacles but the basket floor). Semi-implicit Euler from rest ends at
+    obstacles but a floor at the basket's lowest point). Semi-implicit Euler from rest ends at
     p_T = p_0 + dt^2 sum_k (T - k) a_k, so each of the `iterations` point-mass simulations
     is one weighted sum. Returns (u, simulations)."""
     u = torch.zeros(_n_intervals(task), 4, 3, dtype=torch.float64, requires_grad=True)
@@ -225,7 +229,7 @@ def point_mass_forces(task: BasketTask, iterations: int = 500) -> tuple[torch.Te
     for _ in range(iterations):
         acc = interval_forces(u, task).sum(1) / task.total_mass + task.scene.model.gravity
         p = p0 + lever @ acc
-        p = torch.cat([p[:, :2], p[:, 2:].clamp(min=BASKET_FLOOR)], 1)  # the basket floor stops it
+        p = torch.cat([p[:, :2], p[:, 2:].clamp(min=BASKET_FLOOR)], 1)  # the basket's bottom stops it
         loss = ((p - points) ** 2).sum() / task.size**2
         opt.zero_grad()
         loss.backward()

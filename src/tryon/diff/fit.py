@@ -60,7 +60,10 @@ STAGE_EVALUATIONS = (14, 12, 10)  # simulations per stage at most (line searches
 GN_ITERATIONS = (4, 3, 3)  # Gauss-Newton iterations per stage
 GN_FD_STEP = 1e-2  # log-multiplier step of the Jacobian's forward differences (a 1 % change)
 GN_DAMPING = 1e-2  # Levenberg-Marquardt damping at the start of a stage (relative to diag(J^T J))
-GN_RETRIES = 4
+# trial steps per iteration, the damping raised 4x after each that fails (up to 4^7 = 1.6e4x):
+# the late frames flap chaotically, so the loss over them is rough and often only a short step
+# descends (with 4 trials the last stages of a fit often ended at their first iteration)
+GN_RETRIES = 8
 
 
 def parameter_groups() -> torch.Tensor:
