@@ -44,3 +44,29 @@ def test_bad_settings_are_refused():
         PoseDatasetSpec(garment="trousers").validate()
     with pytest.raises(TryonError, match="out of range"):
         PoseDatasetSpec(frames=1).validate()
+
+
+def test_settled_poses_hold_the_body_still_until_the_cloth_rests(tmp_path):
+    """With --settle the body holds every pose (two keyframes a hold apart, the cloth
+    recorded at the second) and the cloth is slower when recorded than in passing."""
+    from tryon.dataset.poses import body_keyframes, settle_time
+
+    base = dict(count=1, frames=4, edge_length=0.03, shard_size=1, seed=3)
+    runs = {}
+    for settle in (0.0, 0.3):
+        out = tmp_path / f"settle-{settle}"
+        make_pose_dataset(PoseDatasetSpec(settle=settle, **base), out, progress=False)
+        runs[settle] = load_pose_dataset(out)
+    held = runs[0.3]
+    assert held.manifest.spec["settle"] == 0.3 and "settle" not in runs[0.0].manifest.spec
+    a, b = runs[0.0].arrays, held.arrays
+    assert a["ok"].all() and b["ok"].all(), (a["error"], b["error"])
+    assert np.allclose(a["pose"], b["pose"])  # the same poses, only held
+    assert np.nanmax(b["speed"]) < np.nanmax(a["speed"])
+    sp = held.manifest.spec
+    shape = held.rest.shape()
+    poses, _ = sequence_poses(held.manifest, shape, 0)
+    frames, times, keys = body_keyframes(shape, poses, sp)
+    hold = settle_time(sp)
+    assert hold == pytest.approx(0.3, abs=step_size(sp))
+    assert np.allclose(times[keys] - times[keys - 1], hold) and np.allclose(frames[keys], frames[keys - 1])

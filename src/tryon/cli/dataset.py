@@ -48,7 +48,7 @@ def _cmd_dataset_poses(args: argparse.Namespace) -> int:
 
     spec = PoseDatasetSpec(garment=args.garment, size=args.size, gender=args.gender, fabric=args.fabric,
                            edge_length=args.edge_length, count=args.count, frames=args.frames, seed=args.seed,
-                           shard_size=args.shard_size)
+                           shard_size=args.shard_size, settle=args.settle)
     spec.validate()
     check_output_dir(args.out, force=args.force)
     store, report = make_pose_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
@@ -118,6 +118,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--edge-length", type=float, default=0.015, help="garment triangle edge length in metres")
     q.add_argument("--count", type=int, default=300, help="sequences")
     q.add_argument("--frames", type=int, default=32, help="poses per sequence (30 per second of motion)")
+    q.add_argument("--settle", type=float, default=0.0,
+                   help="seconds the body holds each pose before the cloth is recorded, so that it comes to rest "
+                        "(quasi-static; 0: recorded as the body passes)")
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--shard-size", type=int, default=16, help="sequences per shard file")
     _generator_args(q)

@@ -10,7 +10,9 @@ the sequence `slow` times slower than real time, while the simulator (contact, f
 self-collision, still-air damping) carries the cloth along; the cloth is recorded at
 every pose. Played slowly and damped, the cloth stays near its static equilibrium for
 each pose (quasi-static, as Jin et al. 2020 generate theirs), with the hysteresis of
-real cloth kept. A sequence the simulator cannot carry (flung cloth, a pinch it stalls
+real cloth kept. With `settle` > 0 the body also holds every pose that long before the
+cloth is recorded, so the cloth comes to rest in it (the recorded `speed`, the cloth's
+fastest vertex at each pose, tells how far it did). A sequence the simulator cannot carry (flung cloth, a pinch it stalls
 on) is kept with `ok` false and its message.
 
 Splits are by sequence (train / val / test at 8:1:1, drawn per unit from the seed), so no
@@ -55,6 +57,7 @@ class PoseDatasetSpec:
     frames: int = 32
     slow: float = 2.0
     blend_time: float = 0.5
+    settle: float = 0.0  # s the body holds each pose before the cloth is recorded (0: recorded in passing)
     seed: int = 0
     shard_size: int = 16
     train_fraction: float = 0.8
@@ -72,6 +75,8 @@ class PoseDatasetSpec:
             raise TryonError(f"--count {self.count} (1-100,000 sequences) or --frames {self.frames} (2-300) out of range")
         if not 0.006 <= self.edge_length <= 0.05 or not 1.0 <= self.slow <= 10.0 or not 0.0 < self.blend_time <= 5.0:
             raise TryonError("edge length 0.006-0.05 m, slow 1-10 and blend time 0-5 s")
+        if not 0.0 <= self.settle <= 2.0:
+            raise TryonError(f"--settle {self.settle}: hold each pose 0-2 s")
         if not 1 <= self.shard_size <= 4096:
             raise TryonError(f"shard size {self.shard_size} is outside 1-4096 sequences")
         if self.seed < 0:
@@ -84,6 +89,8 @@ class PoseDatasetSpec:
                 "edge_length": self.edge_length, "frames": self.frames, "fps": FPS, "slow": self.slow,
                 "blend_time": self.blend_time, "sources": list(SOURCES), "source_weights": list(SOURCE_WEIGHTS),
                 "drape": {"dt": 0.01, "thickness": 0.004, "friction": 0.4, "air_damping": 4.0}}
+        if self.settle > 0:  # only then: datasets made without holds keep their manifests
+            spec["settle"] = self.settle
         split = {"rule": "by sequence: train / val / test drawn per unit from the seed", "train": self.train_fraction,
                  "val": self.val_fraction}
         return Manifest(KIND, GENERATOR_VERSION, software_version, self.seed, self.count, self.shard_size, spec, split,
@@ -184,23 +191,38 @@ def step_size(spec: dict) -> float:
     return spacing / max(1, int(np.ceil(spacing / spec["drape"]["dt"] - 1e-9)))
 
 
+def settle_time(spec: dict) -> float:
+    """How long the body holds each pose (a whole number of steps; 0 without holds)."""
+    hold = float(spec.get("settle", 0.0))
+    dt = step_size(spec)
+    return dt * max(1, round(hold / dt)) if hold > 0 else 0.0
+
+
 def body_keyframes(shape, poses: np.ndarray, spec: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body vertices per keyframe [K,V,3], their simulated times [K] (the poses' on steps
-    of `step_size`), and which keyframes are the sequence's poses (the rest blend from the
-    A-pose into the first)."""
+    of `step_size`), and which keyframes are the sequence's poses, where the cloth is
+    recorded (the rest blend from the A-pose into the first; with `settle`, every pose is
+    a keyframe twice, at the start and at the end of its hold, and recorded at the end)."""
     from tryon.body.motion import slerp_poses, smoothstep
     from tryon.body.pose import bone_transforms, named_pose, skin
 
     verts = shape.vertices.detach()
     start = named_pose(shape, "a")
     n_blend = max(1, int(round(spec["blend_time"] * spec["fps"])))
-    rots = [slerp_poses(start, poses[0], float(smoothstep(k / n_blend))) for k in range(n_blend)] + list(poses)
     dt = step_size(spec)
     blend_end = dt * round(spec["blend_time"] / dt)
-    times = np.concatenate([np.arange(n_blend) * blend_end / n_blend,
-                            blend_end + np.arange(len(poses)) * spec["slow"] / spec["fps"]])
-    frames = np.stack([skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy() for R in rots])
-    return frames, times, np.arange(n_blend, n_blend + len(poses))
+    hold, spacing = settle_time(spec), spec["slow"] / spec["fps"]
+    pose_start = blend_end + np.arange(len(poses)) * (spacing + hold)
+    blend = [slerp_poses(start, poses[0], float(smoothstep(k / n_blend))) for k in range(n_blend)]
+    blend_frames = [skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy() for R in blend]
+    pose_frames = [skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy() for R in poses]
+    blend_times = np.arange(n_blend) * blend_end / n_blend
+    if hold == 0.0:
+        return np.stack(blend_frames + pose_frames), np.concatenate([blend_times, pose_start]), \
+            np.arange(n_blend, n_blend + len(poses))
+    held = [f for f in pose_frames for _ in range(2)]
+    times = np.stack([pose_start, pose_start + hold], 1).reshape(-1)
+    return np.stack(blend_frames + held), np.concatenate([blend_times, times]), n_blend + 1 + 2 * np.arange(len(poses))
 
 
 def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.ndarray]:
@@ -223,7 +245,8 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
     out = {"split": np.asarray(split_of(manifest, unit)), "source": np.asarray(drawn["motion"]),
            "speed": np.asarray(drawn["speed"]), "amplitude": np.asarray(drawn["amplitude"]),
            "pose": matrix_to_axis_angle(poses).astype(np.float32), "ok": np.asarray(True), "error": np.asarray(""),
-           "x": np.full((F, n, 3), np.nan, np.float32), "penetration_pct": np.full(F, np.nan), "max_speed": np.asarray(np.nan)}
+           "x": np.full((F, n, 3), np.nan, np.float32), "penetration_pct": np.full(F, np.nan), "max_speed": np.asarray(np.nan),
+           "speed": np.full(F, np.nan, np.float32)}
     d = spec["drape"]
     body = Obstacle("body", frames[0], shape.faces, Motion(keyframes=frames, keyframe_times=times))
     model = cloth_on_body(rest.garment.cloth_mesh(), load_fabric(spec["fabric"]), body, d["thickness"], friction=d["friction"])
@@ -245,6 +268,7 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
             while k < F and rec.state.t >= record_at[k] - 0.5 * dt:
                 x = rec.state.x.numpy()
                 out["x"][k] = x
+                out["speed"][k] = speed
                 body_now = model.obstacles.vertices_at(rec.state.t)
                 out["penetration_pct"][k] = penetration(x, body_now, shape.faces)["penetration_pct"]
                 k += 1

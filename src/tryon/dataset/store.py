@@ -196,7 +196,7 @@ class ShardStore:
                 parts.append({key: value[None] for key, value in s.items()})
         if not parts:
             raise DatasetError(f"{self.folder} holds no samples yet; run the generator (it resumes)")
-        keys = keys or sorted(parts[0])
+        keys = keys or sorted(set.intersection(*(set(p) for p in parts)))  # samples of older versions may lack new keys
         out = {key: np.concatenate([p[key] for p in parts]) for key in set(keys) | {"unit"}}
         order = np.argsort(out["unit"], kind="stable")
         return {key: value[order] for key, value in out.items()}
