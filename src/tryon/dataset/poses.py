@@ -11,8 +11,8 @@ self-collision, still-air damping) carries the cloth along; the cloth is recorde
 every pose. Played slowly and damped, the cloth stays near its static equilibrium for
 each pose (quasi-static, as Jin et al. 2020 generate theirs), with the hysteresis of
 real cloth kept. With `settle` > 0 the body also holds every pose that long before the
-cloth is recorded, so the cloth comes to rest in it (the recorded `speed`, the cloth's
-fastest vertex at each pose, tells how far it did). A sequence the simulator cannot carry (flung cloth, a pinch it stalls
+cloth is recorded, so the cloth comes to rest in it (the recorded `cloth_speed`, the
+cloth's fastest vertex at each pose, tells how far it did). A sequence the simulator cannot carry (flung cloth, a pinch it stalls
 on) is kept with `ok` false and its message.
 
 Splits are by sequence (train / val / test at 8:1:1, drawn per unit from the seed), so no
@@ -246,7 +246,7 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
            "speed": np.asarray(drawn["speed"]), "amplitude": np.asarray(drawn["amplitude"]),
            "pose": matrix_to_axis_angle(poses).astype(np.float32), "ok": np.asarray(True), "error": np.asarray(""),
            "x": np.full((F, n, 3), np.nan, np.float32), "penetration_pct": np.full(F, np.nan), "max_speed": np.asarray(np.nan),
-           "speed": np.full(F, np.nan, np.float32)}
+           "cloth_speed": np.full(F, np.nan, np.float32)}
     d = spec["drape"]
     body = Obstacle("body", frames[0], shape.faces, Motion(keyframes=frames, keyframe_times=times))
     model = cloth_on_body(rest.garment.cloth_mesh(), load_fabric(spec["fabric"]), body, d["thickness"], friction=d["friction"])
@@ -268,7 +268,7 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
             while k < F and rec.state.t >= record_at[k] - 0.5 * dt:
                 x = rec.state.x.numpy()
                 out["x"][k] = x
-                out["speed"][k] = speed
+                out["cloth_speed"][k] = speed
                 body_now = model.obstacles.vertices_at(rec.state.t)
                 out["penetration_pct"][k] = penetration(x, body_now, shape.faces)["penetration_pct"]
                 k += 1
