@@ -4,7 +4,8 @@ through them (recorded exactly at the poses), split by sequence, resumable."""
 import numpy as np
 import pytest
 
-from tryon.dataset.poses import PoseDatasetSpec, load_pose_dataset, make_pose_dataset, sequence_poses, step_size
+from tryon.dataset.poses import (PoseDatasetSpec, body_keyframes, load_pose_dataset, make_pose_dataset, sequence_poses,
+                                 settle_time, step_size)
 from tryon.errors import TryonError
 
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
@@ -49,8 +50,6 @@ def test_bad_settings_are_refused():
 def test_settled_poses_hold_the_body_still_until_the_cloth_rests(tmp_path):
     """With --settle the body holds every pose (two keyframes a hold apart, the cloth
     recorded at the second) and the cloth is slower when recorded than in passing."""
-    from tryon.dataset.poses import body_keyframes, settle_time
-
     base = dict(count=1, frames=4, edge_length=0.03, shard_size=1, seed=3)
     runs = {}
     for settle in (0.0, 0.3):

@@ -67,9 +67,12 @@ def _print_table(records: list[dict]) -> None:
         rows = [r for r in records if r["source"] == source]
         d = 100 * np.array([r["density_error"] for r in rows])
         e = 100 * np.array([r["simulation_error"] for r in rows])
-        spread = (lambda a: a.std(ddof=1) if len(a) > 1 else 0.0)  # noqa: E731 (sample standard deviation)
-        print(f"{source} ({len(rows)}): density error {d.mean():.2f} +- {spread(d):.2f} %, simulation error "
-              f"{e.mean():.2f} +- {spread(e):.2f} % (max {e.max():.2f} %)")
+        print(f"{source} ({len(rows)}): density error {d.mean():.2f} +- {_sample_std(d):.2f} %, simulation error "
+              f"{e.mean():.2f} +- {_sample_std(e):.2f} % (max {e.max():.2f} %)")
+
+
+def _sample_std(a: np.ndarray) -> float:
+    return float(a.std(ddof=1)) if len(a) > 1 else 0.0
 
 
 def run_fit_fabric_bench(json_path: str, reference: str | None = None, held_out: tuple[str, ...] = HELD_OUT,

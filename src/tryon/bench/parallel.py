@@ -10,10 +10,9 @@ K p / (K + p - 1) and K - K (1 - 1/K)^p, and the relative curvature error at eve
 segment start before (upsampled coarse state) and after detail recovery, and the same
 for recovery alone started from the serial run's exact coarse-scale states (what the
 paper's 46 % -> 14 % isolates: the coarse predictor's own shape error is not recovery's),
-and the same error of the serial run's twin, started from positions moved by 1 um of noise
-(`serial_run(perturb=...)`):
-the cloth's own sensitivity, under which no start state can be judged closer to the serial
-run.
+and the same error of the serial run's twin, started from positions moved by 1 um of
+noise (`serial_run(perturb=...)`): the cloth's own sensitivity, under which no start state
+can be judged closer to the serial run.
 
 The scheduler simulation replays the measured per-step costs (fine, coarse, and a segment's
 start-up: upsampling, crossing checks, recovery, solver set-up),

@@ -12,8 +12,8 @@ every pose. Played slowly and damped, the cloth stays near its static equilibriu
 each pose (quasi-static, as Jin et al. 2020 generate theirs), with the hysteresis of
 real cloth kept. With `settle` > 0 the body also holds every pose that long before the
 cloth is recorded, so the cloth comes to rest in it (the recorded `cloth_speed`, the
-cloth's fastest vertex at each pose, tells how far it did). A sequence the simulator cannot carry (flung cloth, a pinch it stalls
-on) is kept with `ok` false and its message.
+cloth's fastest vertex at each pose, tells how far it did). A sequence the simulator
+cannot carry (flung cloth, a pinch it stalls on) is kept with `ok` false and its message.
 
 Splits are by sequence (train / val / test at 8:1:1, drawn per unit from the seed), so no
 test pose has a training neighbour a frame away.
@@ -212,17 +212,14 @@ def body_keyframes(shape, poses: np.ndarray, spec: dict) -> tuple[np.ndarray, np
     dt = step_size(spec)
     blend_end = dt * round(spec["blend_time"] / dt)
     hold, spacing = settle_time(spec), spec["slow"] / spec["fps"]
-    pose_start = blend_end + np.arange(len(poses)) * (spacing + hold)
-    blend = [slerp_poses(start, poses[0], float(smoothstep(k / n_blend))) for k in range(n_blend)]
-    blend_frames = [skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy() for R in blend]
-    pose_frames = [skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy() for R in poses]
-    blend_times = np.arange(n_blend) * blend_end / n_blend
-    if hold == 0.0:
-        return np.stack(blend_frames + pose_frames), np.concatenate([blend_times, pose_start]), \
-            np.arange(n_blend, n_blend + len(poses))
-    held = [f for f in pose_frames for _ in range(2)]
-    times = np.stack([pose_start, pose_start + hold], 1).reshape(-1)
-    return np.stack(blend_frames + held), np.concatenate([blend_times, times]), n_blend + 1 + 2 * np.arange(len(poses))
+    per_pose = 2 if hold else 1  # keyframes per pose: its arrival, and the end of its hold
+    rots = [slerp_poses(start, poses[0], float(smoothstep(k / n_blend))) for k in range(n_blend)]
+    rots += [R for R in poses for _ in range(per_pose)]
+    frames = np.stack([skin(verts, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy() for R in rots])
+    arrivals = blend_end + np.arange(len(poses)) * (spacing + hold)
+    times = np.concatenate([np.arange(n_blend) * blend_end / n_blend,
+                            (arrivals[:, None] + np.array([0.0, hold])[:per_pose]).reshape(-1)])
+    return frames, times, n_blend + per_pose - 1 + per_pose * np.arange(len(poses))
 
 
 def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.ndarray]:

@@ -8,8 +8,9 @@ basket's lowest centre point (the centre of the box floor, the hopper's apex), d
 by the cloth size (the diagonal of the square).
 
 The loss is the squared distance of the centre of mass to `WAYPOINTS` (above the wall
-half-way, above the basket at release, at the basket's lowest centre point at the end) over the cloth
-size squared: the final distance alone pulls the cloth straight into the wall.
+half-way, above the basket at release, at the basket's lowest centre point at the end)
+over the cloth size squared: the final distance alone pulls the cloth straight into the
+wall.
 
 Controllers, each optimised with Adam on gradients of that loss (safeguarded: a step
 that makes the loss 25 % worse than the best returns to the best with half the rate):
@@ -79,7 +80,8 @@ WAYPOINTS = ((0.5, (0.42, 0.0, 0.9)), (1.0, (BASKET_CENTER[0], BASKET_CENTER[1],
 
 
 def basket_spec(resolution: int = 5, variant: str = "flat", dt: float = 0.025) -> dict:
-    """Scene of the basket task: table, wall and an open basket, box-shaped (`flat`) or a hopper (`sloped`)."""
+    """Scene of the basket task: table, wall and an open basket, box-shaped (`flat`) or a
+    hopper (`sloped`)."""
     if variant not in VARIANTS:
         raise TryonError(f"unknown basket variant {variant!r}; choose one of {', '.join(VARIANTS)}")
     bx, by = BASKET_CENTER
