@@ -70,3 +70,37 @@ def test_settled_poses_hold_the_body_still_until_the_cloth_rests(tmp_path):
     hold = settle_time(sp)
     assert hold == pytest.approx(0.3, abs=step_size(sp))
     assert np.allclose(times[keys] - times[keys - 1], hold) and np.allclose(frames[keys], frames[keys - 1])
+
+
+def test_from_rest_the_cloth_at_a_pose_does_not_depend_on_the_path_to_it(tmp_path, monkeypatch):
+    """--from-rest simulates every pose on its own from the rest drape: the same pose gives
+    the same cloth whatever came before it in the sequence; carried through the sequence
+    (friction keeps what the path did) it does not."""
+    import tryon.dataset.poses as poses_module
+    from tryon.body.pose import arm_pose, matrix_to_axis_angle
+    from tryon.dataset.poses import pose_unit
+
+    out = tmp_path / "from-rest"
+    make_pose_dataset(PoseDatasetSpec(count=1, frames=2, edge_length=0.03, shard_size=1, settle=0.1, from_rest=True),
+                      out, progress=False)
+    data = load_pose_dataset(out)
+    assert data.manifest.spec["from_rest"] is True and data.arrays["ok"].all(), data.arrays["error"]
+    shape = data.rest.shape()
+    raised, lowered, between = (arm_pose(shape, angle) for angle in (120.0, 20.0, 70.0))
+    cloth = {}
+    for from_rest in (True, False):
+        data.manifest.spec["from_rest"] = from_rest
+        for name, first in (("raised", raised), ("lowered", lowered)):
+            drawn = (np.stack([first, between]), {"motion": "test", "speed": 1.0, "amplitude": 1.0})
+            monkeypatch.setattr(poses_module, "sequence_poses", lambda manifest, shape, unit, drawn=drawn: drawn)
+            unit = pose_unit(data.manifest, data.rest, 0)
+            assert unit["ok"], unit["error"]
+            assert np.allclose(unit["pose"][1], matrix_to_axis_angle(between), atol=1e-6)
+            cloth[from_rest, name] = unit["x"][1]
+    gap = {r: np.linalg.norm(cloth[r, "raised"] - cloth[r, "lowered"], axis=-1).mean() for r in (True, False)}
+    assert gap[True] < 1e-4 and gap[False] > 1e-3, gap  # the same pose from rest; different paths: > 1 mm apart
+
+
+def test_from_rest_needs_a_hold():
+    with pytest.raises(TryonError, match="needs --settle"):
+        PoseDatasetSpec(from_rest=True).validate()

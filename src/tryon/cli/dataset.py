@@ -48,7 +48,7 @@ def _cmd_dataset_poses(args: argparse.Namespace) -> int:
 
     spec = PoseDatasetSpec(garment=args.garment, size=args.size, gender=args.gender, fabric=args.fabric,
                            edge_length=args.edge_length, count=args.count, frames=args.frames, seed=args.seed,
-                           shard_size=args.shard_size, settle=args.settle)
+                           shard_size=args.shard_size, settle=args.settle, from_rest=args.from_rest)
     spec.validate()
     check_output_dir(args.out, force=args.force)
     store, report = make_pose_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
@@ -121,6 +121,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--settle", type=float, default=0.0,
                    help="seconds the body holds each pose before the cloth is recorded, so that it comes to rest "
                         "(quasi-static; 0: recorded as the body passes)")
+    q.add_argument("--from-rest", action="store_true",
+                   help="simulate every pose on its own from the rest drape (A-pose, blend, hold --settle), so that the "
+                        "cloth depends on the pose alone and not on the path the sequence took to it")
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--shard-size", type=int, default=16, help="sequences per shard file")
     _generator_args(q)
