@@ -85,6 +85,7 @@ def test_from_rest_the_cloth_at_a_pose_does_not_depend_on_the_path_to_it(tmp_pat
                       out, progress=False)
     data = load_pose_dataset(out)
     assert data.manifest.spec["from_rest"] is True and data.arrays["ok"].all(), data.arrays["error"]
+    assert np.isfinite(data.arrays["x"]).all() and np.isfinite(data.arrays["cloth_speed"]).all()
     shape = data.rest.shape()
     raised, lowered, between = (arm_pose(shape, angle) for angle in (120.0, 20.0, 70.0))
     cloth = {}

@@ -50,6 +50,10 @@ KEY_SPACING = 15  # frames between random key poses (half a second of motion)
 MAX_FAILSAFE_STEPS = 3
 
 
+class SequenceFailed(TryonError):
+    """The simulator could not carry the cloth through a pose (flung, or pinched)."""
+
+
 @dataclass
 class PoseDatasetSpec:
     """`count` sequences of `frames` poses of the garment of `size` on its fit model."""
@@ -251,7 +255,7 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
     try:
         for chain in chains:
             simulate_poses(spec, rest, shape, poses[chain], out, chain.start)
-    except TryonError as exc:
+    except SequenceFailed as exc:
         out.update({"ok": np.asarray(False), "error": np.asarray(str(exc)[:500])})
     out["wall_s"] = np.asarray(time.perf_counter() - t0)
     return out
@@ -260,13 +264,11 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
 def simulate_poses(spec: dict, rest: RestDrape, shape, poses: np.ndarray, out: dict, first: int) -> None:
     """Carry the rest drape from the A-pose through `poses`, writing the cloth at each pose
     into `out`'s frames from `first` on and its top speed into `max_speed`. Raises
-    TryonError when the cloth is flung or pinched."""
+    SequenceFailed when the simulator cannot carry the cloth (the fail-safe limit counts
+    per call: per sequence, or per pose from rest)."""
     from tryon.drape.dress import cloth_on_body
-    from tryon.drape.fit_metrics import penetration
     from tryon.fabric import load_fabric
     from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
-    from tryon.sim.loop import steps
-    from tryon.sim.model import Control
     from tryon.sim.obstacles import Motion, Obstacle
 
     frames, times, pose_keys = body_keyframes(shape, poses, spec)
@@ -274,27 +276,40 @@ def simulate_poses(spec: dict, rest: RestDrape, shape, poses: np.ndarray, out: d
     body = Obstacle("body", frames[0], shape.faces, Motion(keyframes=frames, keyframe_times=times))
     model = cloth_on_body(rest.garment.cloth_mesh(), load_fabric(spec["fabric"]), body, d["thickness"], friction=d["friction"])
     solver = ImplicitEulerSolver(model, StepOptions(max_substep_depth=1))
-    control = Control(air_damping=d["air_damping"])
-    record_at = times[pose_keys]
+    where = f"pose {first}: " if spec.get("from_rest") else ""
+    try:
+        _record_poses(solver, model, spec, shape, times[pose_keys], out, first, where)
+    except SequenceFailed:
+        raise
+    except TryonError as exc:  # the simulator's own failure in these poses (e.g. a step that does not converge)
+        raise SequenceFailed(f"{where}{exc}") from exc
+
+
+def _record_poses(solver, model, spec: dict, shape, record_at: np.ndarray, out: dict, first: int, where: str) -> None:
+    from tryon.drape.fit_metrics import penetration
+    from tryon.sim.loop import steps
+    from tryon.sim.model import Control
+
     dt = step_size(spec)
     k, failsafe = 0, 0
+    control = Control(air_damping=spec["drape"]["air_damping"])
     for rec in steps(solver, model.initial_state(), dt, 0, int(round(record_at[-1] / dt)) + 1, control):
         speed = float(np.linalg.norm(rec.state.v.numpy(), axis=1).max())
         out["max_speed"] = np.asarray(max(float(out["max_speed"]), speed))
         if speed > PLAUSIBLE_SPEED:
-            raise TryonError(f"the cloth was flung at {speed:.1f} m/s at t={rec.state.t:.2f} s")
+            raise SequenceFailed(f"{where}the cloth was flung at {speed:.1f} m/s at t={rec.state.t:.2f} s")
         failsafe += int(rec.stats.fallback)
         if failsafe >= MAX_FAILSAFE_STEPS:
-            raise TryonError(f"the collision response needed the rigid fail-safe {failsafe} times by t={rec.state.t:.2f} s "
-                             "(cloth pinched by the pose)")
-        while k < len(poses) and rec.state.t >= record_at[k] - 0.5 * dt:
+            raise SequenceFailed(f"{where}the collision response needed the rigid fail-safe {failsafe} times by "
+                                 f"t={rec.state.t:.2f} s (cloth pinched by the pose)")
+        while k < len(record_at) and rec.state.t >= record_at[k] - 0.5 * dt:
             x = rec.state.x.numpy()
             out["x"][first + k] = x
             out["cloth_speed"][first + k] = speed
             body_now = model.obstacles.vertices_at(rec.state.t)
             out["penetration_pct"][first + k] = penetration(x, body_now, shape.faces)["penetration_pct"]
             k += 1
-        if k == len(poses):
+        if k == len(record_at):
             break
 
 
