@@ -4,8 +4,10 @@ through them (recorded exactly at the poses), split by sequence, resumable."""
 import numpy as np
 import pytest
 
-from tryon.dataset.poses import (PoseDatasetSpec, body_keyframes, load_pose_dataset, make_pose_dataset, sequence_poses,
-                                 settle_time, step_size)
+import tryon.dataset.poses as poses_module
+from tryon.body.pose import arm_pose, matrix_to_axis_angle
+from tryon.dataset.poses import (PoseDatasetSpec, body_keyframes, load_pose_dataset, make_pose_dataset, pose_unit,
+                                 sequence_poses, settle_time, step_size)
 from tryon.errors import TryonError
 
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
@@ -26,8 +28,6 @@ def test_a_small_pose_dataset_is_made_and_resumed(tmp_path):
     assert np.linalg.norm(a["x"][:, -1] - data.rest.garment.vertices, axis=-1).max() > 0.01
     # the stored poses are the unit's own draw
     shape = data.rest.shape()
-    from tryon.body.pose import matrix_to_axis_angle
-
     poses, drawn = sequence_poses(data.manifest, shape, 1)
     assert np.allclose(a["pose"][1], matrix_to_axis_angle(poses), atol=1e-6) and str(a["source"][1]) == drawn["motion"]
     # every pose falls on a time step
@@ -76,10 +76,6 @@ def test_from_rest_the_cloth_at_a_pose_does_not_depend_on_the_path_to_it(tmp_pat
     """--from-rest simulates every pose on its own from the rest drape: the same pose gives
     the same cloth whatever came before it in the sequence; carried through the sequence
     (friction keeps what the path did) it does not."""
-    import tryon.dataset.poses as poses_module
-    from tryon.body.pose import arm_pose, matrix_to_axis_angle
-    from tryon.dataset.poses import pose_unit
-
     out = tmp_path / "from-rest"
     make_pose_dataset(PoseDatasetSpec(count=1, frames=2, edge_length=0.03, shard_size=1, settle=0.1, from_rest=True),
                       out, progress=False)

@@ -16,8 +16,9 @@ cloth's fastest vertex at each pose, tells how far it did). With `from_rest` eve
 is simulated on its own from the rest drape instead: the body blends from the A-pose into
 that pose over `blend_time`, holds it `settle` seconds, and the cloth is recorded. The
 cloth is then a function of the pose alone: carried through a sequence, friction keeps
-what the path did (the same arm-raise pose reached in two sequences holds cloth 1.2 cm
-apart, median; from rest 0.35 cm), which no pose-to-cloth network can learn. A sequence
+what the path did (arm-raise poses reached in two sequences hold cloth 1.2 cm apart,
+median; the pair furthest apart, 3.2 cm, comes out 0.35 cm apart from rest), which no
+pose-to-cloth network can learn. A sequence
 the simulator cannot carry (flung cloth, a pinch it stalls on) is kept with `ok` false
 and its message.
 
@@ -276,16 +277,13 @@ def simulate_poses(spec: dict, rest: RestDrape, shape, poses: np.ndarray, out: d
     body = Obstacle("body", frames[0], shape.faces, Motion(keyframes=frames, keyframe_times=times))
     model = cloth_on_body(rest.garment.cloth_mesh(), load_fabric(spec["fabric"]), body, d["thickness"], friction=d["friction"])
     solver = ImplicitEulerSolver(model, StepOptions(max_substep_depth=1))
-    where = f"pose {first}: " if spec.get("from_rest") else ""
     try:
-        _record_poses(solver, model, spec, shape, times[pose_keys], out, first, where)
-    except SequenceFailed:
-        raise
-    except TryonError as exc:  # the simulator's own failure in these poses (e.g. a step that does not converge)
-        raise SequenceFailed(f"{where}{exc}") from exc
+        _record_poses(solver, model, spec, shape, times[pose_keys], out, first)
+    except TryonError as exc:  # flung, pinched, or the simulator's own failure (e.g. a step that does not converge)
+        raise SequenceFailed(f"pose {first}: {exc}" if spec.get("from_rest") else str(exc)) from exc
 
 
-def _record_poses(solver, model, spec: dict, shape, record_at: np.ndarray, out: dict, first: int, where: str) -> None:
+def _record_poses(solver, model, spec: dict, shape, record_at: np.ndarray, out: dict, first: int) -> None:
     from tryon.drape.fit_metrics import penetration
     from tryon.sim.loop import steps
     from tryon.sim.model import Control
@@ -297,10 +295,10 @@ def _record_poses(solver, model, spec: dict, shape, record_at: np.ndarray, out: 
         speed = float(np.linalg.norm(rec.state.v.numpy(), axis=1).max())
         out["max_speed"] = np.asarray(max(float(out["max_speed"]), speed))
         if speed > PLAUSIBLE_SPEED:
-            raise SequenceFailed(f"{where}the cloth was flung at {speed:.1f} m/s at t={rec.state.t:.2f} s")
+            raise SequenceFailed(f"the cloth was flung at {speed:.1f} m/s at t={rec.state.t:.2f} s")
         failsafe += int(rec.stats.fallback)
         if failsafe >= MAX_FAILSAFE_STEPS:
-            raise SequenceFailed(f"{where}the collision response needed the rigid fail-safe {failsafe} times by "
+            raise SequenceFailed(f"the collision response needed the rigid fail-safe {failsafe} times by "
                                  f"t={rec.state.t:.2f} s (cloth pinched by the pose)")
         while k < len(record_at) and rec.state.t >= record_at[k] - 0.5 * dt:
             x = rec.state.x.numpy()
