@@ -141,6 +141,18 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     scene = json.loads((write_viewer(drape, animation="arm-raise") / "scene.json").read_text())
     assert scene["frames"] == 16 and scene["garment"]["vertices"] == n
     assert any("kdsm" in line and "ms per frame" in line for line in scene["info"])
+    # the bench's held-out motion: the model against the simulated animation of the same drape, with a picture
+    from PIL import Image
+
+    from tryon.bench.kdsm import heldout_motion_records
+    from tryon.body.pose_sampling import random_motion
+
+    random_motion(data.rest.shape(), seed=99, seconds=0.2).save(tmp_path / "motion.npz")
+    recs = heldout_motion_records([tmp_path / "m" / "model.npz"], drape, tmp_path / "motion.npz", tmp_path / "held",
+                                  progress=False, picture=tmp_path / "held.png")
+    assert len(recs) == 1 and recs[0]["transferred_to_another_body"] and recs[0]["frames"] == 22
+    assert 0 < recs[0]["mean_error_cm"] <= recs[0]["max_frame_error_cm"] < 20
+    assert Image.open(tmp_path / "held.png").size == (720, 480)   # simulated and the one model side by side
 
 
 def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):

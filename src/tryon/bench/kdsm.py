@@ -15,9 +15,11 @@ heldout-motion`: each model's `tryon animate --method kdsm` against the simulate
 animate` of that drape through a motion outside the dataset (`--motion FILE`, default
 random key poses from a seed the dataset does not use).
 
-Also writes OUT with .png: the error histograms per method (the paper's Figure 8) and,
-for the test frame where the methods differ most, ground truth and each method's garment
-side by side.
+Also writes OUT with .png: the error histograms per method (the paper's Figure 8), the
+last pose of the first test sequence with the simulated garment and each method's side by
+side (`_frames.png`) and, with `--drape`, the same on that drape's body at the held-out
+motion's most typical frame for the first model (`_transfer.png`: the paper's transfer to
+another body shape when the drape's body is not the dataset's).
 """
 
 from __future__ import annotations
@@ -97,7 +99,8 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
 
             motion = work / "random-motion.npz"
             random_motion(data.rest.shape(), seed=data.manifest.seed + 777).save(motion)
-        records += heldout_motion_records(models, drape, motion, work, progress)
+        records += heldout_motion_records(models, drape, motion, work, progress,
+                                          picture=Path(json_path).with_name(Path(json_path).stem + "_transfer.png"))
     write_records(json_path, records, threads=torch.get_num_threads(), data=str(data_dir))
     _histograms(Path(json_path).with_suffix(".png"), per_frame)
     if len(test_rows):
@@ -132,9 +135,10 @@ def _by_source(method: str, split: str, err: np.ndarray, source: np.ndarray) -> 
 
 
 def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, motion: str | Path, work: Path,
-                           progress: bool = True) -> list[dict]:
+                           progress: bool = True, picture: Path | None = None) -> list[dict]:
     """Each model's animation of a drape through `motion` against the simulated `tryon
-    animate` of the same drape and motion: per-frame mean vertex distance (cm)."""
+    animate` of the same drape and motion: per-frame mean vertex distance (cm). With
+    `picture`, renders the simulated garment and each model's side by side there."""
     from tryon.drape.animate import animate
     from tryon.kdsm.animate import kdsm_animate
 
@@ -143,7 +147,7 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
     animate(drape_dir, str(motion), out=sim_out, progress=progress, force=True)
     sim_s = time.perf_counter() - t
     sim = np.load(sim_out / "frames.npz")
-    records = []
+    records, shown = [], []
     for k, m in enumerate(models):
         out = work / f"model{k}-{Path(m).parent.name or Path(m).stem}"
         rep = kdsm_animate(drape_dir, m, str(motion), out=out, progress=progress, force=True)
@@ -153,11 +157,33 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
         truth = _at_times(sim["positions"], sim["times"], times[keep])   # the simulated frames at the model's times
         n = int(keep.sum())
         err = 100.0 * np.linalg.norm(pred[keep] - truth, axis=-1).mean(1)
+        shown.append((rep["method"], pred[keep], err, truth, got["body_vertices"][keep], got["body_faces"], got["faces"]))
         records.append({"table": "heldout-motion", "method": rep["method"], "split": "heldout-motion", "motion": str(motion),
                         "frames": int(n), "mean_error_cm": float(err.mean()), "std_error_cm": float(err.std()),
                         "max_frame_error_cm": float(err.max()), "inference_ms": rep["ms_per_frame"],
                         "transferred_to_another_body": rep["transferred_to_another_body"], "simulation_s": sim_s})
+    if picture is not None and shown:
+        _heldout_picture(picture, shown)
     return records
+
+
+def _heldout_picture(path: Path, shown: list) -> None:
+    """The simulated garment and each model's at one frame of the held-out motion: the
+    frame whose error for the first model is nearest its mean (typical, not the best)."""
+    from tryon.bench.prints import _titled
+    from tryon.drape.outputs import SKIN
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
+
+    err0 = shown[0][2]
+    f = int(np.argmin(np.abs(err0 - err0.mean())))
+    _, _, _, truth, bodies, body_faces, faces = shown[0]
+    body = RenderMesh(bodies[f], body_faces, color=SKIN, two_sided=False)
+    cam = Camera.fit([bodies[f]], "three_quarter", aspect=0.75, margin=1.05)
+    tiles = []
+    for name, x, err in [("simulated", truth[f], None)] + [(s[0], s[1][f], s[2][f]) for s in shown]:
+        img = render_meshes([body, RenderMesh(x, faces, color=(0.56, 0.57, 0.60))], 360, 480, camera=cam)
+        tiles.append(_titled(img, name + ("" if err is None else f" {err:.2f} cm")))
+    save_png(path, np.concatenate(tiles, axis=1))
 
 
 def _at_times(frames: np.ndarray, times: np.ndarray, at: np.ndarray) -> np.ndarray:
