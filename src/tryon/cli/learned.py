@@ -23,7 +23,8 @@ def _cmd_train_kdsm(args: argparse.Namespace) -> int:
     from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
 
     config = KdsmTrainConfig(method=args.method, epochs=args.epochs, batch=args.batch, lr=args.lr, seed=args.seed,
-                             cell=args.cell, schedule=args.schedule, mirror=args.mirror)
+                             cell=args.cell, schedule=args.schedule, mirror=args.mirror,
+                             **({} if args.smoothing is None else {"smoothing": args.smoothing}))
     config.validate()
     model = train_kdsm(args.data, args.out, config, progress=not args.quiet, force=args.force)
     print(json.dumps({"model": f"{args.out}/model.npz", "method": args.method, "metrics": model.card["metrics"]}, indent=1))
@@ -61,6 +62,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="learning rate over the epochs: cosine decay to 5 %% of --lr, or constant (Jin et al.)")
     k.add_argument("--mirror", action="store_true",
                    help="add each training pose's left-right mirror image (the body and pattern are symmetric)")
+    k.add_argument("--smoothing", type=float, default=None,
+                   help="kdsm-hybrid: screened-Poisson strength of the target d over the cloth mesh (default "
+                        "tryon.kdsm.rig.HYBRID_SMOOTHING; 0 rebuilds the cloth exactly, more gives smoother targets "
+                        "that rebuild it less exactly)")
     k.add_argument("--quiet", action="store_true")
     k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     k.set_defaults(func=_cmd_train_kdsm)

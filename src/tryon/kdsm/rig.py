@@ -72,8 +72,10 @@ class KdsmRig:
         """The skinning baseline: the rest drape carried by the volume."""
         return reconstruct(self.x0, self.volume, self.skin, G)
 
-    def target(self, method: str, x: np.ndarray, G: np.ndarray, body: np.ndarray | None = None) -> np.ndarray:
-        """What `method` learns [n,3] for cloth `x` in the pose of G."""
+    def target(self, method: str, x: np.ndarray, G: np.ndarray, body: np.ndarray | None = None,
+               smoothing: float = HYBRID_SMOOTHING) -> np.ndarray:
+        """What `method` learns [n,3] for cloth `x` in the pose of G (`smoothing`: the
+        screened-Poisson strength applied to the hybrid's d)."""
         body = self.body(G) if body is None else body
         faces = self.shape.faces
         if method == "jin-uvn":
@@ -86,7 +88,7 @@ class KdsmRig:
             m2 = self.binding.positions(self.binding.offsets(x, body, faces), self.rest_body, faces)
         posed = self.skin.pose(self.volume.vertices, G)
         d = embed(x, posed, self.volume, kind, surface_material=m2).material - self.x0
-        return smooth_offsets(d, self.faces, HYBRID_SMOOTHING) if kind == "hybrid" else d
+        return smooth_offsets(d, self.faces, smoothing) if kind == "hybrid" else d
 
     def positions(self, method: str, value: np.ndarray | None, G: np.ndarray, body: np.ndarray | None = None,
                   located: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:

@@ -26,7 +26,7 @@ from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.kdsm.model import KdsmModel, pose_features
 from tryon.kdsm.network import PanelAtlas
-from tryon.kdsm.rig import METHODS, KdsmRig
+from tryon.kdsm.rig import HYBRID_SMOOTHING, METHODS, KdsmRig
 
 CHECKPOINT = "checkpoint.pt"
 SPLITS = ("train", "val", "test")
@@ -43,6 +43,7 @@ class KdsmTrainConfig:
     cell: float = 0.02
     schedule: str = "cosine"    # the learning rate over the epochs: "constant" (Jin et al.) or cosine decay to 5 %
     mirror: bool = False        # add each training pose's left-right mirror image (tryon.kdsm.mirror)
+    smoothing: float = HYBRID_SMOOTHING   # screened-Poisson strength of the hybrid's d (kdsm-hybrid only)
 
     def validate(self) -> None:
         if self.method not in METHODS or self.method == "skinning":
@@ -51,6 +52,8 @@ class KdsmTrainConfig:
             raise TryonError("epochs 1-10,000, batch 1-1,024, a learning rate in (0, 1) and a seed >= 0")
         if not 0.005 <= self.cell <= 0.1:
             raise TryonError(f"--cell {self.cell} m is outside 0.005-0.1 m")
+        if not 0.0 <= self.smoothing <= 100.0:
+            raise TryonError(f"--smoothing {self.smoothing} is outside 0-100")
         if self.schedule not in SCHEDULES:
             raise TryonError(f"--schedule {self.schedule!r}: one of {', '.join(SCHEDULES)}")
 
@@ -62,15 +65,17 @@ class KdsmTrainConfig:
 
 
 def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progress: bool = True,
-             mirror: bool = False) -> dict[str, np.ndarray]:
+             mirror: bool = False, smoothing: float = HYBRID_SMOOTHING) -> dict[str, np.ndarray]:
     """Every ok sequence's poses: per-bone axis-angle [N,J,3], targets [N,n,3], cloth
     [N,n,3], split [N], sequence [N], mirrored [N]; with `mirror`, each training sequence
     also in its left-right mirror image. Targets are cached per sequence (one file each,
     in a folder keyed by the dataset's settings, the rest drape, the method and the
-    volume), so a dataset that grew only computes its new sequences."""
+    volume, and for the hybrid its smoothing), so a dataset that grew only computes its new
+    sequences."""
     rows = data.rows()
     key = hashlib.sha1(json.dumps(data.manifest.spec, sort_keys=True).encode() + rig.x0.tobytes() + method.encode()
-                       + str(rig.volume.cell).encode()).hexdigest()[:16]
+                       + str(rig.volume.cell).encode()
+                       + (f"smoothing={smoothing}".encode() if method == "kdsm-hybrid" else b"")).hexdigest()[:16]
     folder = None if cache is None else cache / f"{method}-{key}"
     mirror_map = None
     if mirror:
@@ -90,7 +95,7 @@ def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progres
                              np.stack([mirror_map.cloth(x) for x in xs])))
         for mirrored, P, X in versions:
             path = None if folder is None else folder / f"{unit:07d}{'m' if mirrored else ''}.npz"
-            parts["target"].append(_cached_targets(path, rig, method, X, P))
+            parts["target"].append(_cached_targets(path, rig, method, X, P, smoothing))
             parts["pose"].append(P.astype(np.float32))
             parts["x"].append(X.astype(np.float32))
             parts["split"] += [split] * len(P)
@@ -101,11 +106,13 @@ def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progres
     return out
 
 
-def _cached_targets(path: Path | None, rig: KdsmRig, method: str, xs: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def _cached_targets(path: Path | None, rig: KdsmRig, method: str, xs: np.ndarray, poses: np.ndarray,
+                    smoothing: float) -> np.ndarray:
     if path is not None and path.exists():
         with np.load(path) as z:
             return z["target"]
-    target = np.stack([rig.target(method, x, rig.transforms(p)) for x, p in zip(xs, poses)]).astype(np.float32)
+    target = np.stack([rig.target(method, x, rig.transforms(p), smoothing=smoothing)
+                       for x, p in zip(xs, poses)]).astype(np.float32)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_write(path, "wb") as fh:
@@ -132,7 +139,7 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     data = load_pose_dataset(data_dir)
     g = data.rest.garment
     rig = KdsmRig.build(g.vertices, g.faces, data.rest.shape(), cell=config.cell)
-    ex = examples(data, rig, config.method, out / "cache", progress, mirror=config.mirror)
+    ex = examples(data, rig, config.method, out / "cache", progress, mirror=config.mirror, smoothing=config.smoothing)
     train = np.flatnonzero(ex["split"] == "train")
     val = np.flatnonzero(ex["split"] == "val")
     selected_on = "val" if len(val) else "train"
