@@ -41,12 +41,27 @@ def test_targets_rebuild_the_cloth(poses):
     assert np.isfinite(res["kdsm-hybrid"]["target"]).all()
     # the hybrid's smoothing: none rebuilds the cloth as exactly as Method 1; more gives a smoother d that rebuilds less
     G = rig.transforms(p[-1])
+    inside = find_parents(x[-1], rig.skin.pose(rig.volume.vertices, G), rig.volume.tets).count(len(x[-1])) > 0
     err, rough = [], []
     for s in (0.0, 0.25, 1.0):
         d = rig.target("kdsm-hybrid", x[-1], G, smoothing=s)
         err.append(np.linalg.norm(rig.positions("kdsm-hybrid", d, G)[inside] - x[-1][inside], axis=1).mean())
         rough.append(np.linalg.norm(d[rig.faces[:, 0]] - d[rig.faces[:, 1]], axis=1).mean())
     assert err[0] < 1e-9 < err[1] < err[2] and rough[0] > rough[1] > rough[2]
+
+
+def test_hybrid_targets_are_cached_apart_for_each_smoothing(poses, tmp_path):
+    from tryon.kdsm.train import KdsmTrainConfig, examples
+
+    data, rows, rig, folder = poses
+    smooth = examples(data, rig, "kdsm-hybrid", tmp_path / "cache", progress=False, smoothing=1.0)
+    exact = examples(data, rig, "kdsm-hybrid", tmp_path / "cache", progress=False, smoothing=0.0)
+    assert len(list((tmp_path / "cache").glob("kdsm-hybrid-*"))) == 2
+    assert np.abs(smooth["target"] - exact["target"]).max() > 1e-4
+    again = examples(data, rig, "kdsm-hybrid", tmp_path / "cache", progress=False, smoothing=0)   # read back, same key
+    assert np.array_equal(again["target"], exact["target"]) and len(list((tmp_path / "cache").glob("*"))) == 2
+    with pytest.raises(TryonError, match="kdsm-hybrid"):
+        KdsmTrainConfig(method="jin-uvn", smoothing=0.0).validate()
 
 
 def test_generation_table_orders_the_methods_as_the_paper(poses):
@@ -98,7 +113,7 @@ def test_enclosed_volume_caps_the_openings():
 def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
     import json
 
-    from tryon.bench.kdsm import run_kdsm_bench
+    from tryon.bench.kdsm import model_labels, run_kdsm_bench
     from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
 
     data, rows, rig, folder = poses
@@ -117,6 +132,10 @@ def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
         assert sum(b["frames"] for b in parts) == r["frames"]
         assert sum(b["frames"] * b["mean_error_cm"] for b in parts) == pytest.approx(r["frames"] * r["mean_error_cm"])
     assert json.loads((tmp_path / "b" / "kdsm.json").read_text())
+    assert all(r["label"] == r["method"] for r in learned)
+    # two models of one method are told apart by their folders
+    assert model_labels(["a/h/model.npz", "a/h2/model.npz", "j/model.npz"], ["kdsm-hybrid", "kdsm-hybrid", "jin-uvn"]) == [
+        "kdsm-hybrid (h)", "kdsm-hybrid (h2)", "jin-uvn"]
 
 
 def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_path):

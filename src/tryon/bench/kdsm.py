@@ -8,18 +8,20 @@ pose dataset.
   skinning the rest drape through the volume, on every split: the per-frame mean vertex
   error (cm; mean and spread over frames), the error of the volume the garment encloses
   with its openings capped (cm³; mean and spread) and the milliseconds to predict one
-  pose. Every model is judged on the same frames.
+  pose. Every model is judged on the same frames. Each record's `label` is its method, or,
+  where two models share a method, the method and the model's folder.
 
 With `--drape DIR` (a drape of the models' garment, any body), also `table:
 heldout-motion`: each model's `tryon animate --method kdsm` against the simulated `tryon
 animate` of that drape through a motion outside the dataset (`--motion FILE`, default
 random key poses from a seed the dataset does not use).
 
-Also writes OUT with .png: the error histograms per method (the paper's Figure 8), the
-last pose of the first test sequence with the simulated garment and each method's side by
-side (`_frames.png`) and, with `--drape`, the same on that drape's body at the held-out
-motion's most typical frame for the first model (`_transfer.png`: the paper's transfer to
-another body shape when the drape's body is not the dataset's).
+Also writes OUT with .png: the error histograms per model (the paper's Figure 8), the
+last pose of the first test sequence with the simulated garment, skinning's and each
+model's side by side (`_frames.png`) and, with `--drape`, the simulated garment and each
+model's on that drape's body at the held-out motion's most typical frame for the first
+model (`_transfer.png`: the paper's transfer to another body shape when the drape's body
+is not the dataset's).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
         loaded[k] = m.on_drape(g.vertices, g.faces, g.corner_uv, g.face_panel, data.rest.shape())[0]
     rig = loaded[0].rig if loaded else KdsmRig.build(g.vertices, g.faces, data.rest.shape())
     skin_only = KdsmModel("skinning", rig, None, np.zeros(0, np.int64), np.zeros(0), np.ones(0), np.zeros(3), np.ones(3))
+    labels = ["skinning"] + model_labels(models, [m.method for m in loaded])
     records = []
     test_rows = data.rows("test")
     if len(test_rows):
@@ -68,7 +71,7 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
             print(f"kdsm bench: posed volume {records[-1]}", flush=True)
     capped = capped_faces(rig.faces, len(rig.x0))
     per_frame: dict[tuple[str, str], np.ndarray] = {}
-    for model in [skin_only] + loaded:
+    for label, model in zip(labels, [skin_only] + loaded):
         net = model.build_net() if model.method != "skinning" else None
         for split in SPLITS:
             rows = data.rows(split)
@@ -82,14 +85,15 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
                 err.append(100.0 * np.linalg.norm(pred - xf, axis=1).mean())
                 verr.append(1e6 * abs(enclosed_volume(pred, rig.faces, capped) - enclosed_volume(xf, rig.faces, capped)))
             err, verr = np.asarray(err), np.asarray(verr)
-            per_frame[(model.method, split)] = err
-            records += _by_source(model.method, split, err, np.repeat(data.arrays["source"][rows], len(err) // len(rows)))
-            records.append({"table": "learned", "method": model.method, "split": split, "frames": int(len(err)),
+            per_frame[(label, split)] = err
+            records += _by_source(model.method, label, split, err,
+                                  np.repeat(data.arrays["source"][rows], len(err) // len(rows)))
+            records.append({"table": "learned", "method": model.method, "label": label, "split": split, "frames": int(len(err)),
                             "mean_error_cm": float(err.mean()), "std_error_cm": float(err.std()),
                             "volume_error_cm3": float(verr.mean()), "volume_error_std_cm3": float(verr.std()),
                             "inference_ms": timed_prediction(model, poses), "model": model.card.get("trained", "")})
             if progress:
-                print(f"kdsm bench: {model.method} {split}: {err.mean():.3f} +- {err.std():.3f} cm, volume "
+                print(f"kdsm bench: {label} {split}: {err.mean():.3f} +- {err.std():.3f} cm, volume "
                       f"{verr.mean():.0f} cm3 ({time.perf_counter() - t0:.0f} s)", flush=True)
     if drape is not None and loaded:
         work = Path(json_path).parent / "heldout"
@@ -99,14 +103,20 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
 
             motion = work / "random-motion.npz"
             random_motion(data.rest.shape(), seed=data.manifest.seed + 777).save(motion)
-        records += heldout_motion_records(models, drape, motion, work, progress,
+        records += heldout_motion_records(models, drape, motion, work, progress, labels=labels[1:],
                                           picture=Path(json_path).with_name(Path(json_path).stem + "_transfer.png"))
     write_records(json_path, records, threads=torch.get_num_threads(), data=str(data_dir))
     _histograms(Path(json_path).with_suffix(".png"), per_frame)
     if len(test_rows):
         _side_by_side(Path(json_path).with_name(Path(json_path).stem + "_frames.png"), data, int(test_rows[0]),
-                      [skin_only] + loaded)
+                      dict(zip(labels, [skin_only] + loaded)))
     return records
+
+
+def model_labels(paths: list[str | Path], methods: list[str]) -> list[str]:
+    """Each model's name in records and pictures: its method, or where two models share a
+    method (say, hybrids trained with two smoothings), the method and the model's folder."""
+    return [m if methods.count(m) == 1 else f"{m} ({Path(p).parent.name or Path(p).stem})" for p, m in zip(paths, methods)]
 
 
 def volume_quality_record(rig, poses: np.ndarray, split: str) -> dict:
@@ -126,19 +136,21 @@ def volume_quality_record(rig, poses: np.ndarray, split: str) -> dict:
             "min_volume_ratio": float(min(r["min_volume_ratio"] for r in q))}
 
 
-def _by_source(method: str, split: str, err: np.ndarray, source: np.ndarray) -> list[dict]:
-    """The per-frame errors of one method and split, apart for each kind of sequence
+def _by_source(method: str, label: str, split: str, err: np.ndarray, source: np.ndarray) -> list[dict]:
+    """The per-frame errors of one model and split, apart for each kind of sequence
     (built-in motions, random key poses): the kinds differ by more than the methods."""
-    return [{"table": "learned-by-source", "method": method, "split": split, "source": str(s),
+    return [{"table": "learned-by-source", "method": method, "label": label, "split": split, "source": str(s),
              "frames": int((source == s).sum()), "mean_error_cm": float(err[source == s].mean()),
              "std_error_cm": float(err[source == s].std())} for s in np.unique(source)]
 
 
 def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, motion: str | Path, work: Path,
-                           progress: bool = True, picture: Path | None = None) -> list[dict]:
+                           progress: bool = True, labels: list[str] | None = None,
+                           picture: Path | None = None) -> list[dict]:
     """Each model's animation of a drape through `motion` against the simulated `tryon
     animate` of the same drape and motion: per-frame mean vertex distance (cm). With
-    `picture`, renders the simulated garment and each model's side by side there."""
+    `picture`, renders the simulated garment and each model's side by side there (titled
+    by `labels`, default the models' methods)."""
     from tryon.drape.animate import animate
     from tryon.kdsm.animate import kdsm_animate
 
@@ -147,7 +159,7 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
     animate(drape_dir, str(motion), out=sim_out, progress=progress, force=True)
     sim_s = time.perf_counter() - t
     sim = np.load(sim_out / "frames.npz")
-    records, shown = [], []
+    records, predicted, errors = [], [], []
     for k, m in enumerate(models):
         out = work / f"model{k}-{Path(m).parent.name or Path(m).stem}"
         rep = kdsm_animate(drape_dir, m, str(motion), out=out, progress=progress, force=True)
@@ -157,32 +169,38 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
         truth = _at_times(sim["positions"], sim["times"], times[keep])   # the simulated frames at the model's times
         n = int(keep.sum())
         err = 100.0 * np.linalg.norm(pred[keep] - truth, axis=-1).mean(1)
-        shown.append((rep["method"], pred[keep], err, truth, got["body_vertices"][keep], got["body_faces"], got["faces"]))
-        records.append({"table": "heldout-motion", "method": rep["method"], "split": "heldout-motion", "motion": str(motion),
+        predicted.append(pred[keep])
+        errors.append(err)
+        if k == 0:   # every model plays the same motion on the same drape: one body and one truth for the picture
+            scene = {"truth": truth, "bodies": got["body_vertices"][keep], "body_faces": got["body_faces"],
+                     "faces": got["faces"]}
+        label = labels[k] if labels else rep["method"]
+        records.append({"table": "heldout-motion", "method": rep["method"], "label": label, "split": "heldout-motion",
+                        "motion": str(motion),
                         "frames": int(n), "mean_error_cm": float(err.mean()), "std_error_cm": float(err.std()),
                         "max_frame_error_cm": float(err.max()), "inference_ms": rep["ms_per_frame"],
                         "transferred_to_another_body": rep["transferred_to_another_body"], "simulation_s": sim_s})
-    if picture is not None and shown:
-        _heldout_picture(picture, shown)
+    if picture is not None and models:
+        _heldout_picture(picture, scene, [r["label"] for r in records], predicted, errors)
     return records
 
 
-def _heldout_picture(path: Path, shown: list) -> None:
+def _heldout_picture(path: Path, scene: dict, labels: list[str], predicted: list[np.ndarray],
+                     errors: list[np.ndarray]) -> None:
     """The simulated garment and each model's at one frame of the held-out motion: the
     frame whose error for the first model is nearest its mean (typical, not the best)."""
     from tryon.bench.prints import _titled
     from tryon.drape.outputs import SKIN
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
-    err0 = shown[0][2]
-    f = int(np.argmin(np.abs(err0 - err0.mean())))
-    _, _, _, truth, bodies, body_faces, faces = shown[0]
-    body = RenderMesh(bodies[f], body_faces, color=SKIN, two_sided=False)
-    cam = Camera.fit([bodies[f]], "three_quarter", aspect=0.75, margin=1.05)
+    f = int(np.argmin(np.abs(errors[0] - errors[0].mean())))
+    body = RenderMesh(scene["bodies"][f], scene["body_faces"], color=SKIN, two_sided=False)
+    cam = Camera.fit([scene["bodies"][f]], "three_quarter", aspect=0.75, margin=1.05)
     tiles = []
-    for name, x, err in [("simulated", truth[f], None)] + [(s[0], s[1][f], s[2][f]) for s in shown]:
-        img = render_meshes([body, RenderMesh(x, faces, color=(0.56, 0.57, 0.60))], 360, 480, camera=cam)
-        tiles.append(_titled(img, name + ("" if err is None else f" {err:.2f} cm")))
+    for name, x in [("simulated", scene["truth"][f])] + [(f"{lab} {e[f]:.2f} cm", p[f])
+                                                       for lab, p, e in zip(labels, predicted, errors)]:
+        img = render_meshes([body, RenderMesh(x, scene["faces"], color=(0.56, 0.57, 0.60))], 360, 480, camera=cam)
+        tiles.append(_titled(img, name))
     save_png(path, np.concatenate(tiles, axis=1))
 
 
@@ -215,19 +233,19 @@ def _histograms(path: Path, per_frame: dict) -> None:
     plt.close(fig)
 
 
-def _side_by_side(path: Path, data, row: int, models: list) -> None:
-    """The last pose of one test sequence: the simulated cloth, then each method's."""
+def _side_by_side(path: Path, data, row: int, models: dict) -> None:
+    """The last pose of one test sequence: the simulated cloth, then each model's (by label)."""
     from tryon.drape.outputs import SKIN
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
     from tryon.bench.prints import _titled
 
-    rig = models[0].rig
+    rig = next(iter(models.values())).rig
     pose = data.arrays["pose"][row][-1]
     G = rig.transforms(pose)
     body = RenderMesh(rig.body(G), rig.shape.faces, color=SKIN, two_sided=False)
     truth = data.arrays["x"][row][-1].astype(np.float64)
-    garments = {"simulated": truth, **{m.method: m.predict(pose) for m in models}}
+    garments = {"simulated": truth, **{label: m.predict(pose) for label, m in models.items()}}
     cam = Camera.fit([rig.body(G)], "three_quarter", aspect=0.75, margin=1.05)
     tiles = []
     for name, x in garments.items():

@@ -63,9 +63,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     k.add_argument("--mirror", action="store_true",
                    help="add each training pose's left-right mirror image (the body and pattern are symmetric)")
     k.add_argument("--smoothing", type=float, default=None,
-                   help="kdsm-hybrid: screened-Poisson strength of the target d over the cloth mesh (default "
-                        "tryon.kdsm.rig.HYBRID_SMOOTHING; 0 rebuilds the cloth exactly, more gives smoother targets "
-                        "that rebuild it less exactly)")
+                   help="kdsm-hybrid only: screened-Poisson smoothing of its target d (each cloth vertex's "
+                        "material-space offset) over the cloth mesh, default 1.0; 0 rebuilds the cloth exactly "
+                        "wherever it lies in the posed volume (as Method 1), more gives smoother targets that "
+                        "rebuild it less exactly")
     k.add_argument("--quiet", action="store_true")
     k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     k.set_defaults(func=_cmd_train_kdsm)

@@ -54,6 +54,8 @@ class KdsmTrainConfig:
             raise TryonError(f"--cell {self.cell} m is outside 0.005-0.1 m")
         if not 0.0 <= self.smoothing <= 100.0:
             raise TryonError(f"--smoothing {self.smoothing} is outside 0-100")
+        if self.method != "kdsm-hybrid" and self.smoothing != HYBRID_SMOOTHING:
+            raise TryonError(f"--smoothing applies to kdsm-hybrid's targets only, not {self.method}'s")
         if self.schedule not in SCHEDULES:
             raise TryonError(f"--schedule {self.schedule!r}: one of {', '.join(SCHEDULES)}")
 
@@ -75,7 +77,7 @@ def examples(data, rig: KdsmRig, method: str, cache: Path | None = None, progres
     rows = data.rows()
     key = hashlib.sha1(json.dumps(data.manifest.spec, sort_keys=True).encode() + rig.x0.tobytes() + method.encode()
                        + str(rig.volume.cell).encode()
-                       + (f"smoothing={smoothing}".encode() if method == "kdsm-hybrid" else b"")).hexdigest()[:16]
+                       + (f"smoothing={float(smoothing)!r}".encode() if method == "kdsm-hybrid" else b"")).hexdigest()[:16]
     folder = None if cache is None else cache / f"{method}-{key}"
     mirror_map = None
     if mirror:
@@ -162,7 +164,8 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     ckpt = out / CHECKPOINT
     if ckpt.exists():
         saved = torch.load(ckpt, weights_only=True)
-        if saved["config"] != json.dumps(asdict(config), sort_keys=True) or saved["data"] != data_key:
+        # settings added since the checkpoint was made take their defaults
+        if {**asdict(KdsmTrainConfig()), **json.loads(saved["config"])} != asdict(config) or saved["data"] != data_key:
             raise TryonError(f"{ckpt} was made with other settings or data; use another --out or remove it")
         net.load_state_dict(saved["net"])
         opt.load_state_dict(saved["opt"])
@@ -224,13 +227,20 @@ def card_markdown(card: dict) -> str:
              f"- Split by sequence: {card['manifest']['split']['rule']}.",
              f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']} "
              f"({card['config'].get('schedule', 'constant')}), "
-             f"{'training poses and their mirror images, ' if card['config'].get('mirror') else ''}seed "
+             f"{'training poses and their mirror images, ' if card['config'].get('mirror') else ''}"
+             f"{_smoothing_note(card)}seed "
              f"{card['config']['seed']}, volume cell {card['config']['cell']} m, {card['bones']} moving bones as input; "
              f"selected on {card['selected_on']}; {card['training_s'] / 60:.0f} min here.", "",
              "| split | sequences | frames | mean error (cm) | std over frames (cm) |", "|---|---:|---:|---:|---:|"]
     for split, m in card["metrics"].items():
         lines.append(f"| {split} | {m['sequences']} | {m['frames']} | {m['mean_error_cm']:.3f} | {m['std_error_cm']:.3f} |")
     return "\n".join(lines) + "\n"
+
+
+def _smoothing_note(card: dict) -> str:
+    if card["method"] != "kdsm-hybrid":
+        return ""
+    return f"targets smoothed with strength {card['config'].get('smoothing', HYBRID_SMOOTHING):g}, "
 
 
 def frame_errors(model: KdsmModel, ex: dict, rows: np.ndarray, net=None, batch: int = 32) -> np.ndarray:
