@@ -222,9 +222,10 @@ def card_markdown(card: dict) -> str:
     spec = card["manifest"]["spec"]
     lines = [f"# KDSM model: {card['method']}", "",
              f"- Data: `tryon dataset poses`, {spec['garment']} {spec['size']} on the {spec['gender']} fit model, "
-             f"{spec['fabric']}, {spec['edge_length']} m edges, sequences of {spec['frames']} poses at {spec['fps']:g} fps "
-             f"(seed {card['manifest']['seed']}, generator version {card['manifest']['generator_version']}).",
-             f"- Split by sequence: {card['manifest']['split']['rule']}.",
+             f"{spec['fabric']}, {spec['edge_length']} m edges, sequences of {spec['frames']} poses at {spec['fps']:g} fps"
+             f"{_recording_note(spec)} (seed {card['manifest']['seed']}, generator version "
+             f"{card['manifest']['generator_version']}).",
+             f"- Split: {card['manifest']['split']['rule']}.",
              f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']} "
              f"({card['config'].get('schedule', 'constant')}), "
              f"{'training poses and their mirror images, ' if card['config'].get('mirror') else ''}"
@@ -235,6 +236,14 @@ def card_markdown(card: dict) -> str:
     for split, m in card["metrics"].items():
         lines.append(f"| {split} | {m['sequences']} | {m['frames']} | {m['mean_error_cm']:.3f} | {m['std_error_cm']:.3f} |")
     return "\n".join(lines) + "\n"
+
+
+def _recording_note(spec: dict) -> str:
+    if spec.get("from_rest"):
+        return f", each pose simulated on its own from the rest drape and held {spec['settle']:g} s (--from-rest)"
+    if spec.get("settle"):
+        return f", each pose held {spec['settle']:g} s"
+    return ""
 
 
 def _smoothing_note(card: dict) -> str:
