@@ -189,19 +189,9 @@ def _heldout_picture(path: Path, scene: dict, labels: list[str], predicted: list
                      errors: list[np.ndarray]) -> None:
     """The simulated garment and each model's at one frame of the held-out motion: the
     frame whose error for the first model is nearest its mean (typical, not the best)."""
-    from tryon.bench.prints import _titled
-    from tryon.drape.outputs import SKIN
-    from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
-
     f = int(np.argmin(np.abs(errors[0] - errors[0].mean())))
-    body = RenderMesh(scene["bodies"][f], scene["body_faces"], color=SKIN, two_sided=False)
-    cam = Camera.fit([scene["bodies"][f]], "three_quarter", aspect=0.75, margin=1.05)
-    tiles = []
-    for name, x in [("simulated", scene["truth"][f])] + [(f"{lab} {e[f]:.2f} cm", p[f])
-                                                       for lab, p, e in zip(labels, predicted, errors)]:
-        img = render_meshes([body, RenderMesh(x, scene["faces"], color=(0.56, 0.57, 0.60))], 360, 480, camera=cam)
-        tiles.append(_titled(img, name))
-    save_png(path, np.concatenate(tiles, axis=1))
+    garments = {"simulated": scene["truth"][f]} | {f"{lab} {e[f]:.2f} cm": p[f] for lab, p, e in zip(labels, predicted, errors)}
+    _garments_on_body(path, scene["bodies"][f], scene["body_faces"], scene["faces"], garments)
 
 
 def _at_times(frames: np.ndarray, times: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -235,21 +225,25 @@ def _histograms(path: Path, per_frame: dict) -> None:
 
 def _side_by_side(path: Path, data, row: int, models: dict) -> None:
     """The last pose of one test sequence: the simulated cloth, then each model's (by label)."""
+    rig = next(iter(models.values())).rig
+    pose = data.arrays["pose"][row][-1]
+    truth = data.arrays["x"][row][-1].astype(np.float64)
+    garments = {"simulated": truth}
+    for label, m in models.items():
+        x = m.predict(pose)
+        garments[f"{label} {100 * np.linalg.norm(x - truth, axis=1).mean():.2f} cm"] = x
+    _garments_on_body(path, rig.body(rig.transforms(pose)), rig.shape.faces, rig.faces, garments)
+
+
+def _garments_on_body(path: Path, body: np.ndarray, body_faces: np.ndarray, faces: np.ndarray,
+                      garments: dict[str, np.ndarray]) -> None:
+    """One tile per garment (titled by its key) on the same body and camera, side by side."""
+    from tryon.bench.prints import _titled
     from tryon.drape.outputs import SKIN
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes, save_png
 
-    from tryon.bench.prints import _titled
-
-    rig = next(iter(models.values())).rig
-    pose = data.arrays["pose"][row][-1]
-    G = rig.transforms(pose)
-    body = RenderMesh(rig.body(G), rig.shape.faces, color=SKIN, two_sided=False)
-    truth = data.arrays["x"][row][-1].astype(np.float64)
-    garments = {"simulated": truth, **{label: m.predict(pose) for label, m in models.items()}}
-    cam = Camera.fit([rig.body(G)], "three_quarter", aspect=0.75, margin=1.05)
-    tiles = []
-    for name, x in garments.items():
-        err = "" if name == "simulated" else f" {100 * np.linalg.norm(x - truth, axis=1).mean():.2f} cm"
-        img = render_meshes([body, RenderMesh(x, rig.faces, color=(0.56, 0.57, 0.60))], 360, 480, camera=cam)
-        tiles.append(_titled(img, name + err))
+    skin = RenderMesh(body, body_faces, color=SKIN, two_sided=False)
+    cam = Camera.fit([body], "three_quarter", aspect=0.75, margin=1.05)
+    tiles = [_titled(render_meshes([skin, RenderMesh(x, faces, color=(0.56, 0.57, 0.60))], 360, 480, camera=cam), name)
+             for name, x in garments.items()]
     save_png(path, np.concatenate(tiles, axis=1))
