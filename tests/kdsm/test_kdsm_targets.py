@@ -74,6 +74,34 @@ def test_generation_table_orders_the_methods_as_the_paper(poses):
     assert rows["skinning"]["generation_mean_error_cm"] > rows["kdsm-hybrid"]["generation_mean_error_cm"]
 
 
+def test_generation_table_smooths_the_hybrid_as_asked(poses):
+    data, rows, rig, folder = poses
+    x, p = data.arrays["x"][rows[:1]], data.arrays["pose"][rows[:1]]
+    exact, smooth = ({r["method"]: r for r in generation_table(rig, x, p, smoothing=s)}["kdsm-hybrid"] for s in (0.0, 1.0))
+    assert (exact["smoothing"], smooth["smoothing"]) == (0.0, 1.0)
+    assert exact["generation_mean_error_cm"] < smooth["generation_mean_error_cm"]
+
+
+def test_checkpoints_made_before_a_setting_resume_with_what_training_did_then():
+    from dataclasses import asdict
+
+    from tryon.kdsm.model import KdsmModel
+    from tryon.kdsm.rig import HYBRID_SMOOTHING, SMOOTHING_BEFORE_SETTING
+    from tryon.kdsm.train import KdsmTrainConfig, _resumed_config
+
+    old_hybrid = {k: v for k, v in asdict(KdsmTrainConfig(method="kdsm-hybrid")).items() if k != "smoothing"}
+    assert _resumed_config(old_hybrid)["smoothing"] == SMOOTHING_BEFORE_SETTING != HYBRID_SMOOTHING
+    assert _resumed_config(old_hybrid) == asdict(KdsmTrainConfig(method="kdsm-hybrid", smoothing=SMOOTHING_BEFORE_SETTING))
+    # the other methods have no smoothing: whatever their checkpoint saved, they resume under today's default
+    jin = {**asdict(KdsmTrainConfig(method="jin-uvn")), "smoothing": 1.0}
+    assert _resumed_config(jin) == asdict(KdsmTrainConfig(method="jin-uvn"))
+    card = {"config": old_hybrid}
+    assert KdsmModel("kdsm-hybrid", None, None, None, None, None, None, None, card=card).smoothing == SMOOTHING_BEFORE_SETTING
+    card = {"config": {**old_hybrid, "smoothing": 0.5}}
+    assert KdsmModel("kdsm-hybrid", None, None, None, None, None, None, None, card=card).smoothing == 0.5
+    assert KdsmModel("jin-uvn", None, None, None, None, None, None, None, card=card).smoothing is None
+
+
 def test_training_learns_saves_and_resumes_exactly(poses, tmp_path):
     from tryon.kdsm.model import KdsmModel
     from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
@@ -176,10 +204,16 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
 
     random_motion(data.rest.shape(), seed=99, seconds=0.2).save(tmp_path / "motion.npz")
     recs = heldout_motion_records([tmp_path / "m" / "model.npz"], drape, tmp_path / "motion.npz", tmp_path / "held",
-                                  progress=False, picture=tmp_path / "held.png")
-    assert len(recs) == 1 and recs[0]["transferred_to_another_body"] and recs[0]["frames"] == 22
+                                  progress=False, picture=tmp_path / "held.png", from_rest=data.manifest.spec,
+                                  from_rest_frames=1)
+    assert len(recs) == 2 and recs[0]["transferred_to_another_body"] and recs[0]["frames"] == 22
     assert 0 < recs[0]["mean_error_cm"] <= recs[0]["max_frame_error_cm"] < 20
     assert Image.open(tmp_path / "held.png").size == (720, 480)   # simulated and the one model side by side
+    # the floor of a pose-to-cloth model: the simulator's cloth for a pose of the motion, from rest, against the animation
+    floor = recs[1]
+    assert floor["method"] == "simulation-from-rest" and (floor["frames"], floor["failed"]) == (1, 0)
+    assert 0 < floor["mean_error_cm"] < 10
+    assert 0 < recs[0]["from_rest_error_cm"] < 20 and 0 < recs[0]["sampled_frames_error_cm"] < 20
 
 
 def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):

@@ -3,7 +3,8 @@ pose dataset.
 
 - Table 1 (`table: generation`): for each method, the cloth rebuilt from its exact target
   (what a perfect network gives) and how far the target moves between consecutive poses,
-  on the test sequences.
+  on the test sequences (the hybrid's targets smoothed as the first benched hybrid was
+  trained, else with the default; its row says which).
 - Tables 2 and 3 (`table: learned`): every trained model (`tryon train kdsm`), and
   skinning the rest drape through the volume, on every split: the per-frame mean vertex
   error (cm; mean and spread over frames), the error of the volume the garment encloses
@@ -43,7 +44,7 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
     from tryon.dataset.poses import load_pose_dataset
     from tryon.kdsm.evaluate import capped_faces, enclosed_volume, generation_table
     from tryon.kdsm.model import KdsmModel, timed_prediction
-    from tryon.kdsm.rig import KdsmRig
+    from tryon.kdsm.rig import HYBRID_SMOOTHING, KdsmRig
 
     t0 = time.perf_counter()
     data = load_pose_dataset(data_dir)
@@ -61,7 +62,9 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
     records = []
     test_rows = data.rows("test")
     if len(test_rows):
-        for r in generation_table(rig, data.arrays["x"][test_rows], data.arrays["pose"][test_rows], progress=progress):
+        smoothing = next((m.smoothing for m in loaded if m.method == "kdsm-hybrid"), HYBRID_SMOOTHING)
+        for r in generation_table(rig, data.arrays["x"][test_rows], data.arrays["pose"][test_rows], progress=progress,
+                                  smoothing=smoothing):
             records.append({"table": "generation", "split": "test", "sequences": int(len(test_rows)), **r})
     judged = test_rows if len(test_rows) else data.rows()
     if len(judged):
@@ -104,7 +107,8 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
             motion = work / "random-motion.npz"
             random_motion(data.rest.shape(), seed=data.manifest.seed + 777).save(motion)
         records += heldout_motion_records(models, drape, motion, work, progress, labels=labels[1:],
-                                          picture=Path(json_path).with_name(Path(json_path).stem + "_transfer.png"))
+                                          picture=Path(json_path).with_name(Path(json_path).stem + "_transfer.png"),
+                                          from_rest=data.manifest.spec)
     write_records(json_path, records, threads=torch.get_num_threads(), data=str(data_dir))
     _histograms(Path(json_path).with_suffix(".png"), per_frame)
     if len(test_rows):
@@ -146,11 +150,13 @@ def _by_source(method: str, label: str, split: str, err: np.ndarray, source: np.
 
 def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, motion: str | Path, work: Path,
                            progress: bool = True, labels: list[str] | None = None,
-                           picture: Path | None = None) -> list[dict]:
+                           picture: Path | None = None, from_rest: dict | None = None,
+                           from_rest_frames: int = 8) -> list[dict]:
     """Each model's animation of a drape through `motion` against the simulated `tryon
     animate` of the same drape and motion: per-frame mean vertex distance (cm). With
     `picture`, renders the simulated garment and each model's side by side there (titled
-    by `labels`, default the models' methods)."""
+    by `labels`, default the models' methods). With `from_rest` (a pose dataset's spec),
+    also the floor of every pose-to-cloth model: see `from_rest_records`."""
     from tryon.drape.animate import animate
     from tryon.kdsm.animate import kdsm_animate
 
@@ -173,7 +179,7 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
         errors.append(err)
         if k == 0:   # every model plays the same motion on the same drape: one body and one truth for the picture
             scene = {"truth": truth, "bodies": got["body_vertices"][keep], "body_faces": got["body_faces"],
-                     "faces": got["faces"]}
+                     "faces": got["faces"], "times": times[keep]}
         label = labels[k] if labels else rep["method"]
         records.append({"table": "heldout-motion", "method": rep["method"], "label": label, "split": "heldout-motion",
                         "motion": str(motion),
@@ -182,7 +188,52 @@ def heldout_motion_records(models: list[str | Path], drape_dir: str | Path, moti
                         "transferred_to_another_body": rep["transferred_to_another_body"], "simulation_s": sim_s})
     if picture is not None and models:
         _heldout_picture(picture, scene, [r["label"] for r in records], predicted, errors)
+    if from_rest is not None and models:
+        records += from_rest_records(from_rest, drape_dir, motion, scene, predicted, records, from_rest_frames, progress)
     return records
+
+
+def from_rest_records(spec: dict, drape_dir: str | Path, motion: str | Path, scene: dict, predicted: list[np.ndarray],
+                      records: list[dict], count: int = 8, progress: bool = True) -> list[dict]:
+    """The floor of any pose-to-cloth model on the held-out motion. At `count` frames after
+    the blend, the simulator's own cloth for the pose, simulated from the drape at rest as
+    the pose dataset (`spec`) records it, against the simulated animation at that frame:
+    the animation carries the cloth with momentum and friction's memory of the path, which
+    no function of the pose alone holds. Adds to each model's record its error at those
+    frames against the animation (`sampled_frames_error_cm`) and against the cloth from rest
+    (`from_rest_error_cm`)."""
+    from tryon.body.motion import load_motion, motion_poses
+    from tryon.body.pose import named_pose
+    from tryon.dataset.poses import RestDrape, poses_from_rest
+    from tryon.drape.animate import load_drape
+    from tryon.kdsm.animate import FPS
+
+    t = time.perf_counter()
+    rest = RestDrape.from_drape(load_drape(drape_dir))
+    shape = rest.shape()
+    rots, trans, times = motion_poses(shape, load_motion(str(motion), shape), named_pose(shape, "a"), fps=FPS)
+    n = len(scene["times"])
+    if not np.allclose(times[:n], scene["times"]):
+        raise TryonError("the motion's frames do not match the models' animation")
+    after_blend = np.flatnonzero(times[:n] > times[0] + 0.5 - 1e-9)   # kdsm_animate's blend from the A-pose
+    if not len(after_blend):
+        return []
+    picks = np.unique(np.linspace(after_blend[0], after_blend[-1], count).round().astype(int))
+    if progress:
+        print(f"kdsm bench: {len(picks)} poses of the held-out motion simulated from rest", flush=True)
+    cloth, failed = poses_from_rest(spec, rest, rots[picks])
+    ok = np.isfinite(cloth).all(axis=(1, 2))
+    static = cloth[ok] + trans[picks][ok][:, None, :]
+    truth = scene["truth"][picks][ok]
+    gap = 100.0 * np.linalg.norm(static - truth, axis=-1).mean(1)
+    for rec, pred in zip(records, predicted):
+        rec["sampled_frames_error_cm"] = float((100.0 * np.linalg.norm(pred[picks][ok] - truth, axis=-1).mean(1)).mean())
+        rec["from_rest_error_cm"] = float((100.0 * np.linalg.norm(pred[picks][ok] - static, axis=-1).mean(1)).mean())
+    return [{"table": "heldout-motion", "method": "simulation-from-rest", "label": "simulation from rest",
+             "split": "heldout-motion", "motion": str(motion), "frames": int(ok.sum()), "failed": len(failed),
+             "mean_error_cm": float(gap.mean()) if len(gap) else None,
+             "std_error_cm": float(gap.std()) if len(gap) else None,
+             "max_frame_error_cm": float(gap.max()) if len(gap) else None, "simulation_s": time.perf_counter() - t}]
 
 
 def _heldout_picture(path: Path, scene: dict, labels: list[str], predicted: list[np.ndarray],

@@ -64,7 +64,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="add each training pose's left-right mirror image (the body and pattern are symmetric)")
     k.add_argument("--smoothing", type=float, default=None,
                    help="kdsm-hybrid only: screened-Poisson smoothing of its target d (each cloth vertex's "
-                        "material-space offset) over the cloth mesh, default 1.0; 0 rebuilds the cloth exactly "
+                        "material-space offset) over the cloth mesh, default 0.25; 0 rebuilds the cloth exactly "
                         "wherever it lies in the posed volume (as Method 1), more gives smoother targets that "
                         "rebuild it less exactly")
     k.add_argument("--quiet", action="store_true")

@@ -141,6 +141,20 @@ class RestDrape:
         self.garment.save(folder / REST_FILE)
 
     @classmethod
+    def from_drape(cls, state: dict) -> "RestDrape":
+        """The rest state of a `tryon drape` folder (its loaded drape_state): that drape on its body."""
+        from tryon.body.anny_model import ShapeParams, body_model
+        from tryon.body.measure import drafting_measurements
+        from tryon.drape.dress import DressedGarment
+        from tryon.garment.pattern import Pattern
+
+        garment = DressedGarment(state["x"], state["faces"], state["uv"], state["corner_uv"], state["face_panel"],
+                                 Pattern.from_dict(state["pattern"]), np.zeros(0, np.int64))
+        params = ShapeParams.from_dict(state["body_params"])
+        shape = body_model().rest_shape(params).detached()
+        return cls(garment, params, float(drafting_measurements(shape)["crotch_height"]))
+
+    @classmethod
     def load(cls, folder: Path) -> "RestDrape":
         from tryon.body.anny_model import ShapeParams
         from tryon.drape.dress import DressedGarment
@@ -260,6 +274,24 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
         out.update({"ok": np.asarray(False), "error": np.asarray(str(exc)[:500])})
     out["wall_s"] = np.asarray(time.perf_counter() - t0)
     return out
+
+
+def poses_from_rest(spec: dict, rest: RestDrape, poses: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The cloth [F,n,3] in each pose [F,J,3,3], simulated on its own from the rest drape as
+    a `from_rest` dataset records it (the blend from the A-pose, held `settle` seconds, at
+    least 0.3), and the messages of poses the simulator could not carry (NaN there)."""
+    spec = {**spec, "from_rest": True, "settle": float(spec.get("settle") or 0.3)}
+    shape = rest.shape()
+    out = {"x": np.full((len(poses), len(rest.garment.vertices), 3), np.nan, np.float32),
+           "penetration_pct": np.full(len(poses), np.nan), "max_speed": np.asarray(0.0),
+           "cloth_speed": np.full(len(poses), np.nan, np.float32)}
+    failed = []
+    for k in range(len(poses)):
+        try:
+            simulate_poses(spec, rest, shape, poses[k:k + 1], out, k)
+        except SequenceFailed as exc:
+            failed.append(str(exc))
+    return out["x"], failed
 
 
 def simulate_poses(spec: dict, rest: RestDrape, shape, poses: np.ndarray, out: dict, first: int) -> None:

@@ -9,14 +9,16 @@ import time
 
 import numpy as np
 
-from tryon.kdsm.rig import KdsmRig
+from tryon.kdsm.rig import HYBRID_SMOOTHING, KdsmRig
 
 TARGET_METHODS = ("jin-uvn", "kdsm-method1", "kdsm-method2", "kdsm-hybrid")
 
 
-def sequence_targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods=TARGET_METHODS) -> dict:
-    """For one sequence (cloth [F,n,3], poses [F,J,3]): every method's targets [F,n,3],
-    the positions rebuilt from them [F,n,3] and the skinning baseline's [F,n,3]."""
+def sequence_targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods=TARGET_METHODS,
+                     smoothing: float = HYBRID_SMOOTHING) -> dict:
+    """For one sequence (cloth [F,n,3], poses [F,J,3]): every method's targets [F,n,3]
+    (the hybrid's smoothed with `smoothing`), the positions rebuilt from them [F,n,3] and
+    the skinning baseline's [F,n,3]."""
     out = {m: {"target": [], "rebuilt": []} for m in methods}
     out["skinning"] = {"rebuilt": []}
     for xf, pose in zip(x.astype(np.float64), poses):
@@ -24,21 +26,23 @@ def sequence_targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods=TAR
         body = rig.body(G)
         out["skinning"]["rebuilt"].append(rig.skinned(G))
         for m in methods:
-            t = rig.target(m, xf, G, body)
+            t = rig.target(m, xf, G, body, smoothing=smoothing)
             out[m]["target"].append(t)
             out[m]["rebuilt"].append(rig.positions(m, t, G, body))
     return {m: {k: np.stack(v) for k, v in d.items()} for m, d in out.items()}
 
 
-def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: bool = False) -> list[dict]:
+def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: bool = False,
+                     smoothing: float = HYBRID_SMOOTHING) -> list[dict]:
     """Table 1 over sequences (cloth [S,F,n,3], poses [S,F,J,3]): per method, the rebuilt
     cloth's vertex error (cm, mean and max) and the target's change between consecutive
-    poses (cm, mean and max over vertices and pose pairs)."""
+    poses (cm, mean and max over vertices and pose pairs); the hybrid's targets smoothed
+    with `smoothing` (recorded in its row)."""
     err: dict[str, list] = {}
     jump: dict[str, list] = {}
     t0 = time.perf_counter()
     for s in range(len(x)):
-        res = sequence_targets(rig, x[s], poses[s])
+        res = sequence_targets(rig, x[s], poses[s], smoothing=smoothing)
         for m, d in res.items():
             err.setdefault(m, []).append(100.0 * np.linalg.norm(d["rebuilt"] - x[s], axis=-1).ravel())
             if "target" in d:
@@ -49,6 +53,8 @@ def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: b
     for m in err:
         e = np.concatenate(err[m])
         row = {"method": m, "generation_mean_error_cm": float(e.mean()), "generation_max_error_cm": float(e.max())}
+        if m == "kdsm-hybrid":
+            row["smoothing"] = float(smoothing)
         if m in jump:
             j = np.concatenate(jump[m])
             row.update({"mean_delta_d_cm": float(j.mean()), "max_delta_d_cm": float(j.max())})

@@ -16,7 +16,7 @@ from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.kdsm.network import PanelAtlas, PixelNet
 from tryon.kdsm.offsets import SurfaceBinding
-from tryon.kdsm.rig import METHODS, KdsmRig
+from tryon.kdsm.rig import METHODS, SMOOTHING_BEFORE_SETTING, KdsmRig
 from tryon.kdsm.skinning import VolumeSkin
 from tryon.kdsm.volume import TetVolume
 
@@ -41,6 +41,13 @@ class KdsmModel:
     target_std: np.ndarray
     weights: dict[str, np.ndarray] = field(default_factory=dict)
     card: dict = field(default_factory=dict)
+
+    @property
+    def smoothing(self) -> float | None:
+        """The hybrid's target smoothing it was trained with (None for other methods)."""
+        if self.method != "kdsm-hybrid":
+            return None
+        return float(self.card.get("config", {}).get("smoothing", SMOOTHING_BEFORE_SETTING))
 
     def build_net(self) -> PixelNet:
         net = PixelNet(len(self.feature_mean), self.atlas.panels)

@@ -26,7 +26,7 @@ from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.kdsm.model import KdsmModel, pose_features
 from tryon.kdsm.network import PanelAtlas
-from tryon.kdsm.rig import HYBRID_SMOOTHING, METHODS, KdsmRig
+from tryon.kdsm.rig import HYBRID_SMOOTHING, METHODS, SMOOTHING_BEFORE_SETTING, KdsmRig
 
 CHECKPOINT = "checkpoint.pt"
 SPLITS = ("train", "val", "test")
@@ -164,8 +164,7 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     ckpt = out / CHECKPOINT
     if ckpt.exists():
         saved = torch.load(ckpt, weights_only=True)
-        # settings added since the checkpoint was made take their defaults
-        if {**asdict(KdsmTrainConfig()), **json.loads(saved["config"])} != asdict(config) or saved["data"] != data_key:
+        if _resumed_config(json.loads(saved["config"])) != asdict(config) or saved["data"] != data_key:
             raise TryonError(f"{ckpt} was made with other settings or data; use another --out or remove it")
         net.load_state_dict(saved["net"])
         opt.load_state_dict(saved["opt"])
@@ -246,10 +245,19 @@ def _recording_note(spec: dict) -> str:
     return ""
 
 
+def _resumed_config(saved: dict) -> dict:
+    """A checkpoint's settings, completed for settings added since it was made: each takes
+    the value training had before it existed (the hybrid's smoothing: 1), else its default.
+    Smoothing means nothing to the other methods: theirs is the default, whatever was saved."""
+    if saved.get("method") != "kdsm-hybrid":
+        return {**asdict(KdsmTrainConfig()), **saved, "smoothing": HYBRID_SMOOTHING}
+    return {**asdict(KdsmTrainConfig()), "smoothing": SMOOTHING_BEFORE_SETTING, **saved}
+
+
 def _smoothing_note(card: dict) -> str:
     if card["method"] != "kdsm-hybrid":
         return ""
-    return f"targets smoothed with strength {card['config'].get('smoothing', HYBRID_SMOOTHING):g}, "
+    return f"targets smoothed with strength {card['config'].get('smoothing', SMOOTHING_BEFORE_SETTING):g}, "
 
 
 def frame_errors(model: KdsmModel, ex: dict, rows: np.ndarray, net=None, batch: int = 32) -> np.ndarray:
