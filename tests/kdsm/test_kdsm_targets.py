@@ -3,6 +3,8 @@ offsets and Method 1 rebuild the cloth (Method 1 exactly wherever the cloth is i
 posed volume), Method 2 and the hybrid trade a little error for targets that change
 less between poses, and all beat skinning the rest drape."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -82,6 +84,48 @@ def test_generation_table_smooths_the_hybrid_as_asked(poses):
     assert exact["generation_mean_error_cm"] < smooth["generation_mean_error_cm"]
 
 
+def test_a_checkpoint_without_smoothing_resumes_only_as_it_was_trained(poses, tmp_path, capsys):
+    import torch
+
+    from tryon.cli import main
+    from tryon.kdsm.rig import HYBRID_SMOOTHING, SMOOTHING_BEFORE_SETTING
+    from tryon.kdsm.train import CHECKPOINT, KdsmTrainConfig, train_kdsm
+
+    data, rows, rig, folder = poses
+    old = KdsmTrainConfig(method="kdsm-hybrid", epochs=3, batch=4, cell=0.025, smoothing=SMOOTHING_BEFORE_SETTING)
+    assert train_kdsm(folder, tmp_path / "m", old, progress=False, max_epochs_this_run=1) is None
+    ckpt = torch.load(tmp_path / "m" / CHECKPOINT, weights_only=True)   # as saved before smoothing was a setting
+    ckpt["config"] = json.dumps({k: v for k, v in json.loads(ckpt["config"]).items() if k != "smoothing"})
+    torch.save(ckpt, tmp_path / "m" / CHECKPOINT)
+    today = KdsmTrainConfig(method="kdsm-hybrid", epochs=3, batch=4, cell=0.025)
+    assert today.smoothing == HYBRID_SMOOTHING != SMOOTHING_BEFORE_SETTING
+    with pytest.raises(TryonError, match="smoothing: 1.0 there, 0.25 asked"):
+        train_kdsm(folder, tmp_path / "m", today, progress=False)
+    assert len(list((tmp_path / "m" / "cache").glob("kdsm-hybrid-*"))) == 1   # refused before computing targets
+    assert train_kdsm(folder, tmp_path / "m", old, progress=False, max_epochs_this_run=1) is None   # resumed
+    # the command line refuses --smoothing for a method without it, and says the default
+    assert main(["train", "kdsm", "--data", str(folder), "--method", "jin-uvn", "--smoothing", "0.25",
+                 "--out", str(tmp_path / "j")]) == 2
+    assert "kdsm-hybrid's targets only" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "kdsm", "--help"])
+    assert f"default {HYBRID_SMOOTHING:g};" in " ".join(capsys.readouterr().out.split())
+
+
+def test_table_1_shows_the_hybrid_at_each_benched_smoothing():
+    from types import SimpleNamespace
+
+    from tryon.bench.kdsm import hybrid_smoothings
+    from tryon.kdsm.rig import HYBRID_SMOOTHING
+
+    def model(method, smoothing=None):
+        return SimpleNamespace(method=method, smoothing=smoothing)
+
+    assert hybrid_smoothings([model("jin-uvn")]) == [HYBRID_SMOOTHING]
+    assert hybrid_smoothings([model("kdsm-hybrid", 1.0), model("jin-uvn"), model("kdsm-hybrid", 0.25),
+                              model("kdsm-hybrid", 1.0)]) == [1.0, 0.25]
+
+
 def test_checkpoints_made_before_a_setting_resume_with_what_training_did_then():
     from dataclasses import asdict
 
@@ -95,6 +139,7 @@ def test_checkpoints_made_before_a_setting_resume_with_what_training_did_then():
     # the other methods have no smoothing: whatever their checkpoint saved, they resume under today's default
     jin = {**asdict(KdsmTrainConfig(method="jin-uvn")), "smoothing": 1.0}
     assert _resumed_config(jin) == asdict(KdsmTrainConfig(method="jin-uvn"))
+    assert _resumed_config({k: v for k, v in jin.items() if k != "schedule"})["schedule"] == "constant"
     card = {"config": old_hybrid}
     assert KdsmModel("kdsm-hybrid", None, None, None, None, None, None, None, card=card).smoothing == SMOOTHING_BEFORE_SETTING
     card = {"config": {**old_hybrid, "smoothing": 0.5}}
@@ -199,7 +244,7 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     # the bench's held-out motion: the model against the simulated animation of the same drape, with a picture
     from PIL import Image
 
-    from tryon.bench.kdsm import heldout_motion_records
+    from tryon.bench.kdsm import _at_times, heldout_motion_records
     from tryon.body.pose_sampling import random_motion
 
     random_motion(data.rest.shape(), seed=99, seconds=0.2).save(tmp_path / "motion.npz")
@@ -210,10 +255,18 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     assert 0 < recs[0]["mean_error_cm"] <= recs[0]["max_frame_error_cm"] < 20
     assert Image.open(tmp_path / "held.png").size == (720, 480)   # simulated and the one model side by side
     # the floor of a pose-to-cloth model: the simulator's cloth for a pose of the motion, from rest, against the animation
-    floor = recs[1]
-    assert floor["method"] == "simulation-from-rest" and (floor["frames"], floor["failed"]) == (1, 0)
-    assert 0 < floor["mean_error_cm"] < 10
-    assert 0 < recs[0]["from_rest_error_cm"] < 20 and 0 < recs[0]["sampled_frames_error_cm"] < 20
+    gap, model = recs[1], recs[0]
+    assert gap["method"] == "simulation-from-rest" and gap["frames"] == 1 and gap["failed_frame_times_s"] == []
+    assert gap["frame_times_s"] == [pytest.approx(0.5)] and gap["fabric"] == data.manifest.spec["fabric"]   # first after the blend
+    assert 0 < gap["mean_error_cm"] < 10 and 0 < model["from_rest_error_cm"] < 20
+    # the model's distances to the animation and to the cloth from rest, and theirs to each other, at the same frame
+    assert abs(model["sampled_frames_error_cm"] - model["from_rest_error_cm"]) <= gap["mean_error_cm"] + 1e-9
+    got = np.load(tmp_path / "held" / "model0-m" / "frames.npz")
+    sim = np.load(tmp_path / "held" / "simulated" / "frames.npz")
+    at = np.flatnonzero(np.isclose(got["times"], 0.5))[0]
+    truth = _at_times(sim["positions"], sim["times"], got["times"][at:at + 1])[0]
+    assert model["sampled_frames_error_cm"] == pytest.approx(
+        100 * np.linalg.norm(got["positions"][at] - truth, axis=1).mean(), rel=1e-6)
 
 
 def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):

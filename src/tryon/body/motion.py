@@ -33,6 +33,7 @@ __all__ = ["BUILTIN_MOTIONS", "BodyMotion", "load_motion", "motion_keyframes", "
 
 BUILTIN_MOTIONS = ("walk", "arm-raise", "turn")
 MAX_BLEND_TIME = 60.0  # s
+BLEND_TIME = 0.5  # s from the start pose into a motion's first frame, by default
 
 
 def load_motion(source: str | Path, shape: BodyShape | None = None, allow_large: bool | None = None) -> BodyMotion:
@@ -82,7 +83,7 @@ def smoothstep(s: np.ndarray | float) -> np.ndarray | float:
     return s * s * (3 - 2 * s)
 
 
-def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = 0.5,
+def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = BLEND_TIME,
                  fps: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poses [K,J,3,3], root translations [K,3] and times [K]: `blend_time` seconds from
     `start_pose` [J,3,3] into the motion's first frame (smoothstep slerp), then the motion."""
@@ -107,7 +108,7 @@ def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, b
     return np.stack(rots), np.stack(trans), np.asarray(times)
 
 
-def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = 0.5,
+def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = BLEND_TIME,
                      fps: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Skinned body vertices [K,V,3] and their times [K] of `motion_poses`."""
     rots, trans, times = motion_poses(shape, motion, start_pose, blend_time, fps)

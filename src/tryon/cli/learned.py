@@ -20,8 +20,11 @@ def _cmd_train_drape(args: argparse.Namespace) -> int:
 
 
 def _cmd_train_kdsm(args: argparse.Namespace) -> int:
+    from tryon.errors import TryonError
     from tryon.kdsm.train import KdsmTrainConfig, train_kdsm
 
+    if args.smoothing is not None and args.method != "kdsm-hybrid":
+        raise TryonError(f"--smoothing applies to kdsm-hybrid's targets only, not {args.method}'s")
     config = KdsmTrainConfig(method=args.method, epochs=args.epochs, batch=args.batch, lr=args.lr, seed=args.seed,
                              cell=args.cell, schedule=args.schedule, mirror=args.mirror,
                              **({} if args.smoothing is None else {"smoothing": args.smoothing}))

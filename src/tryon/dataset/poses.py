@@ -141,18 +141,12 @@ class RestDrape:
         self.garment.save(folder / REST_FILE)
 
     @classmethod
-    def from_drape(cls, state: dict) -> "RestDrape":
-        """The rest state of a `tryon drape` folder (its loaded drape_state): that drape on its body."""
-        from tryon.body.anny_model import ShapeParams, body_model
+    def from_drape(cls, state: dict, shape) -> "RestDrape":
+        """The rest state of a `tryon drape` folder (its loaded state): that drape on its body (`shape`)."""
         from tryon.body.measure import drafting_measurements
         from tryon.drape.dress import DressedGarment
-        from tryon.garment.pattern import Pattern
 
-        garment = DressedGarment(state["x"], state["faces"], state["uv"], state["corner_uv"], state["face_panel"],
-                                 Pattern.from_dict(state["pattern"]), np.zeros(0, np.int64))
-        params = ShapeParams.from_dict(state["body_params"])
-        shape = body_model().rest_shape(params).detached()
-        return cls(garment, params, float(drafting_measurements(shape)["crotch_height"]))
+        return cls(DressedGarment.from_state(state), shape.params, float(drafting_measurements(shape)["crotch_height"]))
 
     @classmethod
     def load(cls, folder: Path) -> "RestDrape":
@@ -276,21 +270,21 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
     return out
 
 
-def poses_from_rest(spec: dict, rest: RestDrape, poses: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """The cloth [F,n,3] in each pose [F,J,3,3], simulated on its own from the rest drape as
-    a `from_rest` dataset records it (the blend from the A-pose, held `settle` seconds, at
-    least 0.3), and the messages of poses the simulator could not carry (NaN there)."""
+def poses_from_rest(spec: dict, rest: RestDrape, shape, poses: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
+    """The cloth [F,n,3] in each pose [F,J,3,3], each simulated on its own from the rest
+    drape on `shape` as a `from_rest` dataset of `spec` records it (the blend from the
+    A-pose, then held `settle` seconds, 0.3 where the spec has no holds), and the message
+    of each pose the simulator could not carry, by index (NaN there)."""
     spec = {**spec, "from_rest": True, "settle": float(spec.get("settle") or 0.3)}
-    shape = rest.shape()
     out = {"x": np.full((len(poses), len(rest.garment.vertices), 3), np.nan, np.float32),
            "penetration_pct": np.full(len(poses), np.nan), "max_speed": np.asarray(0.0),
            "cloth_speed": np.full(len(poses), np.nan, np.float32)}
-    failed = []
+    failed = {}
     for k in range(len(poses)):
         try:
             simulate_poses(spec, rest, shape, poses[k:k + 1], out, k)
         except SequenceFailed as exc:
-            failed.append(str(exc))
+            failed[k] = str(exc)
     return out["x"], failed
 
 

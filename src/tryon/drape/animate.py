@@ -51,11 +51,9 @@ def drape_print(drape_dir: str | Path, state: dict):
     if not request.get("print_image"):
         return None
     copy = Path(drape_dir) / "print.png"
-    pattern = Pattern.from_dict(state["pattern"])
-    garment = DressedGarment(state["x"], state["faces"], state["uv"], state["corner_uv"], state["face_panel"], pattern,
-                             np.zeros(0, np.int64))
+    garment = DressedGarment.from_state(state)
     image = copy if copy.is_file() else request["print_image"]
-    return GraphicPrint.load(image, float(request.get("print_width_cm", 24.0))).placed_on(pattern), garment
+    return GraphicPrint.load(image, float(request.get("print_width_cm", 24.0))).placed_on(garment.pattern), garment
 
 
 def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.01, duration: float | None = None,

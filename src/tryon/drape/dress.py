@@ -556,6 +556,12 @@ class DressedGarment:
         return Path(path)
 
     @classmethod
+    def from_state(cls, state: dict) -> "DressedGarment":
+        """The garment of a drape folder's loaded state (`tryon.drape.pipeline.load_state`), as draped."""
+        return cls(state["x"], state["faces"], state["uv"], state["corner_uv"], state["face_panel"],
+                   Pattern.from_dict(state["pattern"]) if state.get("pattern") else None, np.zeros(0, np.int64))
+
+    @classmethod
     def load(cls, path: str | Path) -> "DressedGarment":
         d = np.load(path, allow_pickle=False)
         pattern = json.loads(str(d["pattern"]))

@@ -33,16 +33,16 @@ def sequence_targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods=TAR
 
 
 def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: bool = False,
-                     smoothing: float = HYBRID_SMOOTHING) -> list[dict]:
+                     smoothing: float = HYBRID_SMOOTHING, methods=TARGET_METHODS) -> list[dict]:
     """Table 1 over sequences (cloth [S,F,n,3], poses [S,F,J,3]): per method, the rebuilt
     cloth's vertex error (cm, mean and max) and the target's change between consecutive
     poses (cm, mean and max over vertices and pose pairs); the hybrid's targets smoothed
-    with `smoothing` (recorded in its row)."""
+    with `smoothing` (recorded in its row). Skinning's row and one per method in `methods`."""
     err: dict[str, list] = {}
     jump: dict[str, list] = {}
     t0 = time.perf_counter()
     for s in range(len(x)):
-        res = sequence_targets(rig, x[s], poses[s], smoothing=smoothing)
+        res = sequence_targets(rig, x[s], poses[s], methods, smoothing=smoothing)
         for m, d in res.items():
             err.setdefault(m, []).append(100.0 * np.linalg.norm(d["rebuilt"] - x[s], axis=-1).ravel())
             if "target" in d:

@@ -16,7 +16,7 @@ from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.kdsm.network import PanelAtlas, PixelNet
 from tryon.kdsm.offsets import SurfaceBinding
-from tryon.kdsm.rig import METHODS, SMOOTHING_BEFORE_SETTING, KdsmRig
+from tryon.kdsm.rig import HYBRID_SMOOTHING, METHODS, SMOOTHING_BEFORE_SETTING, KdsmRig
 from tryon.kdsm.skinning import VolumeSkin
 from tryon.kdsm.volume import TetVolume
 
@@ -47,7 +47,9 @@ class KdsmModel:
         """The hybrid's target smoothing it was trained with (None for other methods)."""
         if self.method != "kdsm-hybrid":
             return None
-        return float(self.card.get("config", {}).get("smoothing", SMOOTHING_BEFORE_SETTING))
+        if "config" not in self.card:   # not made by tryon train kdsm
+            return HYBRID_SMOOTHING
+        return float(self.card["config"].get("smoothing", SMOOTHING_BEFORE_SETTING))
 
     def build_net(self) -> PixelNet:
         net = PixelNet(len(self.feature_mean), self.atlas.panels)

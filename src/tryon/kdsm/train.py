@@ -31,6 +31,8 @@ from tryon.kdsm.rig import HYBRID_SMOOTHING, METHODS, SMOOTHING_BEFORE_SETTING, 
 CHECKPOINT = "checkpoint.pt"
 SPLITS = ("train", "val", "test")
 SCHEDULES = ("constant", "cosine")
+# What training did before each setting existed: checkpoints and cards without it mean this.
+BEFORE_SETTING = {"schedule": "constant", "mirror": False, "smoothing": SMOOTHING_BEFORE_SETTING}
 
 
 @dataclass
@@ -138,6 +140,10 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     config.validate()
     out = Path(out)
     claim_work_dir(out, resume=(out / CHECKPOINT).exists() and is_owned(out), force=force)
+    ckpt = out / CHECKPOINT
+    saved = torch.load(ckpt, weights_only=True) if ckpt.exists() else None
+    if saved is not None:   # before any target is computed: say which setting differs
+        _check_resumable(ckpt, json.loads(saved["config"]), config)
     data = load_pose_dataset(data_dir)
     g = data.rest.garment
     rig = KdsmRig.build(g.vertices, g.faces, data.rest.shape(), cell=config.cell)
@@ -161,11 +167,9 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     state = {"epoch": 0, "best_val": float("inf"), "history": []}
     data_key = hashlib.sha1(feats.tobytes()[:1_000_000] + ex["target"][:64].tobytes()).hexdigest()[:16]
-    ckpt = out / CHECKPOINT
-    if ckpt.exists():
-        saved = torch.load(ckpt, weights_only=True)
-        if _resumed_config(json.loads(saved["config"])) != asdict(config) or saved["data"] != data_key:
-            raise TryonError(f"{ckpt} was made with other settings or data; use another --out or remove it")
+    if saved is not None:
+        if saved["data"] != data_key:
+            raise TryonError(f"{ckpt} was made with other data; use another --out or remove it")
         net.load_state_dict(saved["net"])
         opt.load_state_dict(saved["opt"])
         state = json.loads(saved["state"])
@@ -200,6 +204,7 @@ def train_kdsm(data_dir: str | Path, out: str | Path, config: KdsmTrainConfig | 
         state["history"].append({"epoch": state["epoch"], "train_loss": total / len(order), "val_mean_error_cm": val_err})
         if val_err < state["best_val"]:
             state["best_val"] = val_err
+            model.card = {"config": asdict(config)}   # until the full card: what it was trained with
             model.save(out / "best.npz")
         torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "rng": torch.get_rng_state(), "state": json.dumps(state),
                     "config": json.dumps(asdict(config), sort_keys=True), "data": data_key}, out / (CHECKPOINT + ".tmp"))
@@ -226,7 +231,7 @@ def card_markdown(card: dict) -> str:
              f"{card['manifest']['generator_version']}).",
              f"- Split: {card['manifest']['split']['rule']}.",
              f"- Training: {card['epochs']} epochs, batch {card['config']['batch']}, Adam {card['config']['lr']} "
-             f"({card['config'].get('schedule', 'constant')}), "
+             f"({_resumed_config(card['config'])['schedule']}), "
              f"{'training poses and their mirror images, ' if card['config'].get('mirror') else ''}"
              f"{_smoothing_note(card)}seed "
              f"{card['config']['seed']}, volume cell {card['config']['cell']} m, {card['bones']} moving bones as input; "
@@ -246,18 +251,27 @@ def _recording_note(spec: dict) -> str:
 
 
 def _resumed_config(saved: dict) -> dict:
-    """A checkpoint's settings, completed for settings added since it was made: each takes
-    the value training had before it existed (the hybrid's smoothing: 1), else its default.
-    Smoothing means nothing to the other methods: theirs is the default, whatever was saved."""
-    if saved.get("method") != "kdsm-hybrid":
-        return {**asdict(KdsmTrainConfig()), **saved, "smoothing": HYBRID_SMOOTHING}
-    return {**asdict(KdsmTrainConfig()), "smoothing": SMOOTHING_BEFORE_SETTING, **saved}
+    """A checkpoint's (or card's) settings, completed for settings added since it was made:
+    each takes the value training had before it existed (`BEFORE_SETTING`). Smoothing
+    means nothing to methods other than the hybrid: theirs is the default, whatever was saved."""
+    config = {**asdict(KdsmTrainConfig()), **BEFORE_SETTING, **saved}
+    if config["method"] != "kdsm-hybrid":
+        config["smoothing"] = HYBRID_SMOOTHING
+    return config
+
+
+def _check_resumable(ckpt: Path, saved: dict, config: KdsmTrainConfig) -> None:
+    was, asked = _resumed_config(saved), asdict(config)
+    differ = [f"{k}: {was.get(k)!r} there, {v!r} asked" for k, v in asked.items() if was.get(k) != v]
+    if differ:
+        raise TryonError(f"{ckpt} was made with other settings ({'; '.join(differ)}); pass those to resume it, "
+                         "or use another --out")
 
 
 def _smoothing_note(card: dict) -> str:
     if card["method"] != "kdsm-hybrid":
         return ""
-    return f"targets smoothed with strength {card['config'].get('smoothing', SMOOTHING_BEFORE_SETTING):g}, "
+    return f"targets smoothed with strength {_resumed_config(card['config'])['smoothing']:g}, "
 
 
 def frame_errors(model: KdsmModel, ex: dict, rows: np.ndarray, net=None, batch: int = 32) -> np.ndarray:
