@@ -506,8 +506,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--model", help="learned, size: a model file instead of the shipped one")
     b.add_argument("--per-split", type=int, metavar="N",
                    help="learned: judge at most N drapes of each held-out split, evenly spread (refinement takes seconds each)")
-    b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm), one per method")
-    b.add_argument("--drape", help="kdsm: a drape of the models' garment to animate against the simulator")
+    b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm; models of one method "
+                   "are told apart by their folder)")
+    b.add_argument("--drape", help="kdsm: a drape of the models' garment to animate against the simulator (with the "
+                   "dynamics gap: the simulator's own cloth from rest at 8 frames against its animation)")
     b.add_argument("--motion", help="kdsm: the held-out motion (.npz/.bvh; default: random key poses of an unused seed)")
     b.add_argument("--only", nargs="+", metavar="NAME",
                    help="ablations: these variants only; parallel: these scenes only (animate-walk, animate-arm-raise, "
