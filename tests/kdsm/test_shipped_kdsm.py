@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tryon.kdsm.model import MODELS_DIR, KdsmModel, shipped_model_path
+from tryon.kdsm.train import card_markdown
 
 pytestmark = [pytest.mark.anny]
 
@@ -22,3 +23,7 @@ def test_the_shipped_models_load_and_carry_their_cards():
             assert card["metrics"][split]["frames"] >= 100 and np.isfinite(card["metrics"][split]["mean_error_cm"])
         x = model.predict(np.zeros((len(model.rig.shape.bone_labels), 3)))
         assert x.shape == model.rig.x0.shape and np.isfinite(x).all()
+        # the readable card beside it says what the model's own card holds (settings it predates read as they were then)
+        assert p.with_suffix(".md").read_text() == card_markdown(card)
+        if model.method == "kdsm-hybrid":
+            assert model.smoothing == 1.0 and "smoothed with strength 1," in card_markdown(card)
