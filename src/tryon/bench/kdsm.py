@@ -215,7 +215,8 @@ def from_rest_records(spec: dict, drape_dir: str | Path, motion: str | Path, sce
     against the simulated animation at that frame. It is the error of a model that learned
     the from-rest cloth exactly: the animation carries the cloth with momentum and with
     friction's memory of the path, which the from-rest cloth leaves out (a model trained on
-    poses carried through sequences can come nearer). Adds to each model's record (in
+    poses carried through sequences can come nearer); the from-rest run also settles in the
+    dataset's still-air damping, the animation has none. Adds to each model's record (in
     `records`) its error at those frames against the animation (`sampled_frames_error_cm`)
     and against the cloth from rest (`from_rest_error_cm`)."""
     from tryon.body.anny_model import ShapeParams, body_model

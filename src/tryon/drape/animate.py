@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from tryon.body.anny_model import ShapeParams, body_model
-from tryon.body.motion import load_motion, motion_keyframes
+from tryon.body.motion import BLEND_TIME, load_motion, motion_keyframes
 from tryon.body.pose import named_pose
 from tryon.errors import TryonError
 from tryon.fabric import load_fabric
@@ -57,7 +57,7 @@ def drape_print(drape_dir: str | Path, state: dict):
 
 
 def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.01, duration: float | None = None,
-                    blend_time: float = 0.5, repeat: int = 1) -> Scene:
+                    blend_time: float = BLEND_TIME, repeat: int = 1) -> Scene:
     """The draped garment of `drape_dir` as cloth and its body moving through `motion`
     (a built-in name, .npz or .bvh; a cyclic one played `repeat` times) as a key-framed
     obstacle, ready to simulate."""

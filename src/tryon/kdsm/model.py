@@ -47,7 +47,7 @@ class KdsmModel:
         """The hybrid's target smoothing it was trained with (None for other methods)."""
         if self.method != "kdsm-hybrid":
             return None
-        if "config" not in self.card:   # not made by tryon train kdsm
+        if "config" not in self.card:   # saved outside tryon train kdsm (or a best.npz of a run before cards held it)
             return HYBRID_SMOOTHING
         return float(self.card["config"].get("smoothing", SMOOTHING_BEFORE_SETTING))
 
