@@ -222,7 +222,7 @@ def from_rest_records(spec: dict, drape_dir: str | Path, motion: str | Path, sce
     from tryon.body.anny_model import ShapeParams, body_model
     from tryon.body.motion import BLEND_TIME, load_motion, motion_poses
     from tryon.body.pose import named_pose
-    from tryon.dataset.poses import RestDrape, poses_from_rest
+    from tryon.dataset.poses import RestDrape, from_rest_spec, poses_from_rest
     from tryon.drape.animate import load_drape
     from tryon.kdsm.animate import FPS
 
@@ -240,8 +240,8 @@ def from_rest_records(spec: dict, drape_dir: str | Path, motion: str | Path, sce
     picks = np.unique(np.linspace(after_blend[0], after_blend[-1], count).round().astype(int))
     if progress:
         print(f"kdsm bench: {len(picks)} poses of the held-out motion simulated from rest", flush=True)
-    spec = {**spec, "fabric": request["fabric"],
-            "drape": {**spec["drape"], "thickness": request["thickness"], "friction": request["friction"]}}
+    spec = from_rest_spec({**spec, "fabric": request["fabric"],
+                           "drape": {**spec["drape"], "thickness": request["thickness"], "friction": request["friction"]}})
     cloth, failed = poses_from_rest(spec, RestDrape.from_drape(state, shape), shape, rots[picks])
     ok = np.isfinite(cloth).all(axis=(1, 2))
     static = cloth[ok] + trans[picks][ok][:, None, :]
@@ -256,7 +256,7 @@ def from_rest_records(spec: dict, drape_dir: str | Path, motion: str | Path, sce
              "failed_frame_times_s": [float(times[picks[k]]) for k in failed],
              "mean_error_cm": _mean_or_none(gap), "std_error_cm": float(gap.std()) if len(gap) else None,
              "max_frame_error_cm": float(gap.max()) if len(gap) else None,
-             "fabric": spec["fabric"], "air_damping": spec["drape"]["air_damping"], "settle_s": float(spec.get("settle") or 0.3),
+             "fabric": spec["fabric"], "air_damping": spec["drape"]["air_damping"], "settle_s": spec["settle"],
              "simulation_s": time.perf_counter() - t}]
 
 

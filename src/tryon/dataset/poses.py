@@ -49,6 +49,7 @@ KEY_SPACING = 15  # frames between random key poses (half a second of motion)
 # A pose that pinches cloth the collision response cannot free needs the rigid fail-safe,
 # step after step, each costing seconds; the sequence is given up after this many.
 MAX_FAILSAFE_STEPS = 3
+FROM_REST_SETTLE = 0.3  # s a pose is held when simulated from rest for a spec without holds
 
 
 class SequenceFailed(TryonError):
@@ -270,12 +271,18 @@ def pose_unit(manifest: Manifest, rest: RestDrape, unit: int) -> dict[str, np.nd
     return out
 
 
+def from_rest_spec(spec: dict) -> dict:
+    """`spec` as a from-rest dataset records each pose: from the rest drape, held `settle`
+    seconds (FROM_REST_SETTLE where the spec has no holds)."""
+    return {**spec, "from_rest": True, "settle": float(spec.get("settle") or FROM_REST_SETTLE)}
+
+
 def poses_from_rest(spec: dict, rest: RestDrape, shape, poses: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
     """The cloth [F,n,3] in each pose [F,J,3,3], each simulated on its own from the rest
     drape on `shape` as a `from_rest` dataset of `spec` records it (the blend from the
-    A-pose, then held `settle` seconds, 0.3 where the spec has no holds), and the message
+    A-pose, then held as `from_rest_spec` says), and the message
     of each pose the simulator could not carry, by index (NaN there)."""
-    spec = {**spec, "from_rest": True, "settle": float(spec.get("settle") or 0.3)}
+    spec = from_rest_spec(spec)
     out = {"x": np.full((len(poses), len(rest.garment.vertices), 3), np.nan, np.float32),
            "penetration_pct": np.full(len(poses), np.nan), "max_speed": np.asarray(0.0),
            "cloth_speed": np.full(len(poses), np.nan, np.float32)}
