@@ -125,5 +125,8 @@ def test_a_pack_of_some_splits_keeps_only_their_samples(dataset, tmp_path, capsy
     part = load_drape_dataset(tmp_path / "part")
     assert part.arrays["unit"].tolist() == full.arrays["unit"][full.arrays["split"] == "test"].tolist() == [2, 3]
     assert part.arrays["x"].dtype == np.float16 and set(part.references) == set(full.references)
+    # packing other splits into the same copy makes it again (an update never mixes splits)
+    assert main(["dataset", "pack", str(src), "--out", str(tmp_path / "part"), "--splits", "train"]) == 0
+    assert load_drape_dataset(tmp_path / "part").arrays["unit"].tolist() == [0, 1]
     assert main(["dataset", "pack", str(src), "--out", str(tmp_path / "none"), "--splits", "nowhere"]) == 2
     assert "nowhere" in capsys.readouterr().err and not (tmp_path / "none").exists()

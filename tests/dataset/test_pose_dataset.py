@@ -8,6 +8,7 @@ import tryon.dataset.poses as poses_module
 from tryon.body.pose import arm_pose, matrix_to_axis_angle
 from tryon.dataset.poses import (PoseDatasetSpec, body_keyframes, load_pose_dataset, make_pose_dataset, pose_unit,
                                  sequence_poses, settle_time, step_size)
+from tryon.dataset.pack import pack_dataset
 from tryon.errors import TryonError
 
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
@@ -38,6 +39,25 @@ def test_a_small_pose_dataset_is_made_and_resumed(tmp_path):
     _, report = make_pose_dataset(spec, out, progress=False)
     assert report.made == 1 and report.skipped == 2
     assert load_pose_dataset(out).summary()["sequences"] == 3
+    # a packed copy (to keep in version control) loads with its rest drape, in half precision
+    packed = load_pose_dataset(pack_dataset(out, tmp_path / "packed"))
+    full = load_pose_dataset(out)
+    assert packed.arrays["x"].dtype == np.float16 and packed.manifest.spec == full.manifest.spec
+    assert np.abs(packed.arrays["x"].astype(np.float32) - full.arrays["x"]).max() < 0.001
+    assert np.array_equal(packed.rest.garment.vertices, full.rest.garment.vertices)
+    assert packed.rest.params.to_dict() == full.rest.params.to_dict()
+    # packing again after the dataset grew rewrites the short last shard only
+    first, last = (tmp_path / "packed" / "shards" / f"shard-0000{k}.npz" for k in (0, 1))
+    before = (first.read_bytes(), first.stat().st_mtime_ns)
+    assert np.load(last)["unit"].tolist() == [2]
+    spec.count = 4
+    make_pose_dataset(spec, out, progress=False)
+    pack_dataset(out, tmp_path / "packed")
+    assert (first.read_bytes(), first.stat().st_mtime_ns) == before
+    assert np.load(last)["unit"].tolist() == [2, 3]
+    grown = load_pose_dataset(tmp_path / "packed")
+    assert grown.arrays["unit"].tolist() == [0, 1, 2, 3] and grown.manifest.count == 4
+    assert np.abs(grown.arrays["x"].astype(np.float32) - load_pose_dataset(out).arrays["x"]).max() < 0.001
 
 
 def test_bad_settings_are_refused():

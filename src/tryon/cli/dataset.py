@@ -61,10 +61,14 @@ def _cmd_dataset_poses(args: argparse.Namespace) -> int:
 
 
 def _cmd_dataset_pack(args: argparse.Namespace) -> int:
-    from tryon.dataset.loading import load_drape_dataset, pack_dataset
+    from tryon.dataset.loading import load_drape_dataset
+    from tryon.dataset.pack import pack_dataset
+    from tryon.dataset.poses import KIND as POSES, load_pose_dataset
+    from tryon.dataset.store import Manifest
 
     out = pack_dataset(args.dataset, args.out, force=args.force, splits=args.splits)
-    print(json.dumps(load_drape_dataset(out).summary(), indent=1))
+    load = load_pose_dataset if Manifest.read(out).kind == POSES else load_drape_dataset
+    print(json.dumps(load(out).summary(), indent=1))
     print(f"compact dataset: {out}")
     return 0
 

@@ -115,47 +115,4 @@ def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
     return DrapeDataset(manifest, arrays, first.faces, first.references)
 
 
-def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: list[str] | None = None) -> Path:
-    """A compact copy of a dataset to keep in version control: garment vertices as
-    float16 (0.5 mm steps at 1 m, well below a drape's noise), everything else as it
-    is. The copy is a dataset of its own: it loads, trains and resumes like the original.
-    `splits` keeps only the samples of those splits (e.g. the held-out bodies a model is
-    judged on, shipped with it)."""
-    import shutil
-
-    from tryon.io.atomic import atomic_write, claim_work_dir
-    from tryon.io.npz import read_npz
-
-    src = Path(src)
-    manifest = Manifest.read(src)
-    store = ShardStore(src, manifest)
-    files = sorted(store.shards.glob("*.npz")) + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
-    if not files:
-        raise DatasetError(f"{src} holds no samples to pack")
-    packed, known = [], set()
-    for f in files:
-        arrays = read_npz(f, "dataset file")
-        arrays["x"] = arrays["x"].astype(np.float16)
-        if splits is not None:
-            known |= set(np.atleast_1d(arrays["split"]).astype(str))
-            keep = np.isin(np.asarray(arrays["split"]).astype(str), splits)
-            if not keep.any():
-                continue
-            if np.ndim(arrays["split"]) > 0:  # a shard: samples stacked along the first axis
-                arrays = {k: v[keep] for k, v in arrays.items()}
-        packed.append((f, arrays))
-    unknown = sorted(set(splits or ()) - known)
-    if unknown:
-        raise DatasetError(f"{src} has no samples in the split(s) {', '.join(unknown)}; it has {', '.join(sorted(known))}")
-    out = claim_work_dir(dst, force=force)
-    shutil.copytree(src / "references", out / "references")
-    (out / "manifest.json").write_text((src / "manifest.json").read_text())
-    for f, arrays in packed:
-        target = out / f.relative_to(src)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_write(target, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-    return out
-
-
-__all__ = ["make_drape_dataset", "load_drape_dataset", "load_drape_datasets", "pack_dataset", "DrapeDataset", "Reference"]
+__all__ = ["make_drape_dataset", "load_drape_dataset", "load_drape_datasets", "DrapeDataset", "Reference"]

@@ -126,7 +126,6 @@ class RestDrape:
 
     garment: object          # DressedGarment, vertices = the rest drape
     params: object           # ShapeParams of the body
-    crotch_height: float
 
     def shape(self):
         from tryon.body.anny_model import body_model
@@ -138,16 +137,15 @@ class RestDrape:
         from tryon.io.atomic import atomic_write
 
         with atomic_write(folder / "rest.json") as fh:
-            fh.write(json.dumps({"params": self.params.to_dict(), "crotch_height": self.crotch_height}))
+            fh.write(json.dumps({"params": self.params.to_dict()}))
         self.garment.save(folder / REST_FILE)
 
     @classmethod
     def from_drape(cls, state: dict, shape) -> "RestDrape":
         """The rest state of a `tryon drape` folder (its loaded state): that drape on its body (`shape`)."""
-        from tryon.body.measure import drafting_measurements
         from tryon.drape.dress import DressedGarment
 
-        return cls(DressedGarment.from_state(state), shape.params, float(drafting_measurements(shape)["crotch_height"]))
+        return cls(DressedGarment.from_state(state), shape.params)
 
     @classmethod
     def load(cls, folder: Path) -> "RestDrape":
@@ -157,7 +155,7 @@ class RestDrape:
         if not ((folder / REST_FILE).exists() and (folder / "rest.json").exists()):
             raise DatasetError(f"{folder} holds no rest drape ({REST_FILE}); run `tryon dataset poses` again to make it")
         meta = json.loads((folder / "rest.json").read_text())
-        return cls(DressedGarment.load(folder / REST_FILE), ShapeParams.from_dict(meta["params"]), float(meta["crotch_height"]))
+        return cls(DressedGarment.load(folder / REST_FILE), ShapeParams.from_dict(meta["params"]))
 
 
 def prepare(manifest: Manifest, folder: Path, progress: bool = True) -> RestDrape:
@@ -165,7 +163,6 @@ def prepare(manifest: Manifest, folder: Path, progress: bool = True) -> RestDrap
     if (folder / REST_FILE).exists() and (folder / "rest.json").exists():
         return RestDrape.load(folder)
     from tryon.body.fit import Measurements
-    from tryon.body.measure import drafting_measurements
     from tryon.body.pose import posed_body
     from tryon.dataset.drapes import size_pattern
     from tryon.drape.dress import dress_cached
@@ -189,7 +186,7 @@ def prepare(manifest: Manifest, folder: Path, progress: bool = True) -> RestDrap
         raise DatasetError(f"the {spec['garment']} {spec['size']} does not come to rest on its fit model "
                            f"(still moving at {stats['final_rest_speed']:.3f} m/s)")
     garment.vertices = x
-    rest = RestDrape(garment, fit.params, float(drafting_measurements(fit.shape)["crotch_height"]))
+    rest = RestDrape(garment, fit.params)
     folder.mkdir(parents=True, exist_ok=True)
     rest.save(folder)
     return rest
