@@ -63,11 +63,7 @@ def run_kdsm_bench(json_path: str | Path, data_dir: str | Path, models: list[str
     test_rows = data.rows("test")
     if len(test_rows):
         x, poses = data.arrays["x"][test_rows], data.arrays["pose"][test_rows]
-        first, *more = hybrid_smoothings(loaded)
-        rows = generation_table(rig, x, poses, progress=progress, smoothing=first)
-        for s in more:   # the hybrid's row again for each other smoothing a benched hybrid was trained with
-            rows += [r for r in generation_table(rig, x, poses, smoothing=s, methods=("kdsm-hybrid",))
-                     if r["method"] == "kdsm-hybrid"]
+        rows = generation_table(rig, x, poses, progress=progress, smoothings=hybrid_smoothings(loaded))
         for r in rows:
             records.append({"table": "generation", "split": "test", "sequences": int(len(test_rows)), **r})
     judged = test_rows if len(test_rows) else data.rows()

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 
+from tryon.kdsm.embed import smooth_offsets
 from tryon.kdsm.rig import HYBRID_SMOOTHING, KdsmRig
 
 TARGET_METHODS = ("jin-uvn", "kdsm-method1", "kdsm-method2", "kdsm-hybrid")
@@ -19,44 +20,56 @@ def sequence_targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods=TAR
     """For one sequence (cloth [F,n,3], poses [F,J,3]): every method's targets [F,n,3]
     (the hybrid's smoothed with `smoothing`), the positions rebuilt from them [F,n,3] and
     the skinning baseline's [F,n,3]."""
-    out = {m: {"target": [], "rebuilt": []} for m in methods}
-    out["skinning"] = {"rebuilt": []}
+    return {m: d for (m, _), d in _targets(rig, x, poses, methods, (smoothing,)).items()}
+
+
+def _targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods, smoothings) -> dict:
+    """`sequence_targets` keyed by (method, smoothing), the hybrid's at every one of
+    `smoothings` (its embedding made once per pose; only the smoothing differs)."""
+    keys = [(m, s) for m in methods for s in (smoothings if m == "kdsm-hybrid" else (None,))]
+    out = {k: {"target": [], "rebuilt": []} for k in keys}
+    out[("skinning", None)] = {"rebuilt": []}
     for xf, pose in zip(x.astype(np.float64), poses):
         G = rig.transforms(pose)
         body = rig.body(G)
-        out["skinning"]["rebuilt"].append(rig.skinned(G))
+        out[("skinning", None)]["rebuilt"].append(rig.skinned(G))
         for m in methods:
-            t = rig.target(m, xf, G, body, smoothing=smoothing)
-            out[m]["target"].append(t)
-            out[m]["rebuilt"].append(rig.positions(m, t, G, body))
-    return {m: {k: np.stack(v) for k, v in d.items()} for m, d in out.items()}
+            if m == "kdsm-hybrid":
+                raw = rig.target(m, xf, G, body, smoothing=0.0)
+                targets = {s: smooth_offsets(raw, rig.faces, s) for s in smoothings}
+            else:
+                targets = {None: rig.target(m, xf, G, body)}
+            for s, t in targets.items():
+                out[(m, s)]["target"].append(t)
+                out[(m, s)]["rebuilt"].append(rig.positions(m, t, G, body))
+    return {k: {name: np.stack(v) for name, v in d.items()} for k, d in out.items()}
 
 
 def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: bool = False,
-                     smoothing: float = HYBRID_SMOOTHING, methods=TARGET_METHODS) -> list[dict]:
+                     smoothings=(HYBRID_SMOOTHING,), methods=TARGET_METHODS) -> list[dict]:
     """Table 1 over sequences (cloth [S,F,n,3], poses [S,F,J,3]): per method, the rebuilt
     cloth's vertex error (cm, mean and max) and the target's change between consecutive
-    poses (cm, mean and max over vertices and pose pairs); the hybrid's targets smoothed
-    with `smoothing` (recorded in its row). Skinning's row and one per method in `methods`."""
-    err: dict[str, list] = {}
-    jump: dict[str, list] = {}
+    poses (cm, mean and max over vertices and pose pairs). Skinning's row, one per method
+    in `methods`, the hybrid's one per value of `smoothings` (recorded in its row)."""
+    err: dict[tuple, list] = {}
+    jump: dict[tuple, list] = {}
     t0 = time.perf_counter()
     for s in range(len(x)):
-        res = sequence_targets(rig, x[s], poses[s], methods, smoothing=smoothing)
-        for m, d in res.items():
-            err.setdefault(m, []).append(100.0 * np.linalg.norm(d["rebuilt"] - x[s], axis=-1).ravel())
+        res = _targets(rig, x[s], poses[s], methods, tuple(smoothings))
+        for key, d in res.items():
+            err.setdefault(key, []).append(100.0 * np.linalg.norm(d["rebuilt"] - x[s], axis=-1).ravel())
             if "target" in d:
-                jump.setdefault(m, []).append(100.0 * np.linalg.norm(np.diff(d["target"], axis=0), axis=-1).ravel())
+                jump.setdefault(key, []).append(100.0 * np.linalg.norm(np.diff(d["target"], axis=0), axis=-1).ravel())
         if progress:
             print(f"targets: sequence {s + 1}/{len(x)} ({time.perf_counter() - t0:.0f} s)", flush=True)
     rows = []
-    for m in err:
-        e = np.concatenate(err[m])
+    for (m, smoothing), errors in err.items():
+        e = np.concatenate(errors)
         row = {"method": m, "generation_mean_error_cm": float(e.mean()), "generation_max_error_cm": float(e.max())}
-        if m == "kdsm-hybrid":
+        if smoothing is not None:
             row["smoothing"] = float(smoothing)
-        if m in jump:
-            j = np.concatenate(jump[m])
+        if (m, smoothing) in jump:
+            j = np.concatenate(jump[(m, smoothing)])
             row.update({"mean_delta_d_cm": float(j.mean()), "max_delta_d_cm": float(j.max())})
         rows.append(row)
     return rows
