@@ -8,6 +8,7 @@ import tryon.dataset.poses as poses_module
 from tryon.body.pose import arm_pose, matrix_to_axis_angle
 from tryon.dataset.poses import (PoseDatasetSpec, body_keyframes, load_pose_dataset, make_pose_dataset, pose_unit,
                                  sequence_poses, settle_time, step_size)
+from tryon.cli import main
 from tryon.dataset.pack import pack_dataset
 from tryon.errors import TryonError
 
@@ -40,7 +41,8 @@ def test_a_small_pose_dataset_is_made_and_resumed(tmp_path):
     assert report.made == 1 and report.skipped == 2
     assert load_pose_dataset(out).summary()["sequences"] == 3
     # a packed copy (to keep in version control) loads with its rest drape, in half precision
-    packed = load_pose_dataset(pack_dataset(out, tmp_path / "packed"))
+    assert main(["dataset", "pack", str(out), "--out", str(tmp_path / "packed")]) == 0
+    packed = load_pose_dataset(tmp_path / "packed")
     full = load_pose_dataset(out)
     assert packed.arrays["x"].dtype == np.float16 and packed.manifest.spec == full.manifest.spec
     assert np.abs(packed.arrays["x"].astype(np.float32) - full.arrays["x"]).max() < 0.001

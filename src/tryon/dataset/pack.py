@@ -3,92 +3,140 @@
 the samples share (a drape dataset's references, a pose dataset's rest drape). The copy
 is a dataset of its own: it loads, trains and resumes like the original.
 
-Packing again into the same copy adds only what is new: a file whose samples the copy
-already holds is not rewritten (so a copy kept in git grows by the new shards alone),
-and samples that have since joined a shard are replaced by it."""
+Packing again into the same copy keeps the files whose samples it already holds
+byte for byte (so a copy kept in git grows by the new shards alone). The copy is built
+beside the old one and swapped in at the end: a pack that fails leaves the old copy as
+it was."""
 
 from __future__ import annotations
 
+import os
 import shutil
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from tryon.dataset.drapes import KIND as DRAPE
+from tryon.dataset.poses import KIND as POSES
 from tryon.dataset.store import MANIFEST, DatasetError, Manifest, ShardStore
-from tryon.io.atomic import atomic_write, claim_work_dir
+from tryon.io.atomic import atomic_output_dir, atomic_write, is_being_written
 from tryon.io.npz import read_npz
 
-SAMPLE_FOLDERS = ("shards", "pending")
+SHARED = {DRAPE: ("references",), POSES: ("rest.npz", "rest.json")}  # what every sample of a kind shares
 
 
 def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: list[str] | None = None) -> Path:
     """Pack `src` into `dst` (or bring an earlier pack of it up to date). `splits` keeps
     only the samples of those splits (e.g. the held-out bodies a model is judged on,
     shipped with it). Returns the copy's folder."""
-    src = Path(src)
+    src, dst = Path(src), Path(dst)
     manifest = Manifest.read(src)
+    splits = sorted(set(splits)) if splits else None
+    _check_folders(src, dst, manifest, force)
     files = _sample_files(src, manifest)
-    if not files:
-        raise DatasetError(f"{src} holds no samples to pack")
     if splits is not None:
         known = set().union(*(_splits_in(f) for f in files))
         unknown = sorted(set(splits) - known)
         if unknown:
             raise DatasetError(f"{src} has no samples in the split(s) {', '.join(unknown)}; it has {', '.join(sorted(known))}")
-    update = _is_pack_of(Path(dst), manifest, splits)
-    out = claim_work_dir(dst, resume=update, force=force)
-    wanted = {f.relative_to(src) for f in files}
-    for old in [p for folder in SAMPLE_FOLDERS for p in (out / folder).glob("*.npz")]:
-        if old.relative_to(out) not in wanted:
-            old.unlink()  # a sample that has joined a finished shard since the last pack
-    for f in files:
-        target = out / f.relative_to(src)
-        if update and target.exists() and _units(target) == _units(f, splits):
-            continue  # the earlier pack of this file holds the same samples
-        arrays = _packed(read_npz(f, "dataset file"), splits)
-        if arrays is not None:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_write(target, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
-    _copy_shared(src, out)
-    packed = Manifest.read(src)
-    packed.notes = dict(packed.notes, packed={"from": str(src), "splits": sorted(splits) if splits else None})
-    with atomic_write(out / MANIFEST, "w") as fh:
-        fh.write(packed.to_json())
-    return out
+    earlier = dst if _is_pack_of(dst, manifest, splits) else None
+    with atomic_output_dir(dst, force=force or _is_pack(dst)) as out:   # a pack, even one without tryon's marker, is replaced
+        for f in files:
+            rel = f.relative_to(src)
+            if earlier is not None and _same_samples(earlier / rel, f, splits):
+                (out / rel).parent.mkdir(parents=True, exist_ok=True)
+                os.link(earlier / rel, out / rel)     # the same bytes: git sees no change
+                continue
+            arrays = _packed(read_npz(f, "dataset file"), splits)
+            if arrays is not None:
+                (out / rel).parent.mkdir(parents=True, exist_ok=True)
+                with atomic_write(out / rel, "wb") as fh:
+                    np.savez_compressed(fh, **arrays)
+        for name in SHARED[manifest.kind]:
+            copy = shutil.copytree if (src / name).is_dir() else shutil.copy2
+            copy(src / name, out / name)
+        packed = Manifest.read(src)
+        packed.notes = dict(packed.notes, packed={"splits": splits})
+        with atomic_write(out / MANIFEST, "w") as fh:
+            fh.write(packed.to_json())
+    return dst
+
+
+def _check_folders(src: Path, dst: Path, manifest: Manifest, force: bool) -> None:
+    """Refuse, before any work, a pack that could destroy a dataset or read a half-written one."""
+    if manifest.kind not in SHARED:
+        raise DatasetError(f"{src} holds a {manifest.kind!r} dataset; tryon packs {', '.join(SHARED)} datasets")
+    missing = [name for name in SHARED[manifest.kind] if not (src / name).exists()]
+    if missing:
+        raise DatasetError(f"{src} lacks {', '.join(missing)}; run its generator again (it resumes)")
+    a, b = src.resolve(), dst.resolve()
+    if a == b or a in b.parents or b in a.parents:
+        raise DatasetError(f"the pack of {src} must go to a folder outside it (and not contain it); got --out {dst}")
+    if is_being_written(src):
+        raise DatasetError(f"a generator is writing {src}; pack it once that run has stopped")
+    if (dst / MANIFEST).is_file() and not _is_pack(dst) and not force:
+        raise DatasetError(f"{dst} holds a dataset, not a pack of one; packing would replace it: choose another "
+                           f"--out, or pass --force to replace it")
 
 
 def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
+    """The sample files of `src`: its shards, then the pending samples no shard holds (a run
+    stopped while packing a shard can leave some behind)."""
     store = ShardStore(src, manifest)
-    return sorted(store.shards.glob("*.npz")) + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
+    shards = sorted(store.shards.glob("*.npz")) if store.shards.is_dir() else []
+    in_shards = {u for f in shards for u in _units(f)}
+    pending = sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else []
+    files = shards + [f for f in pending if not set(_units(f)) <= in_shards]
+    if not files:
+        raise DatasetError(f"{src} holds no samples to pack")
+    return files
+
+
+def _is_pack(folder: Path) -> bool:
+    try:
+        return isinstance(Manifest.read(folder).notes.get("packed"), dict)
+    except DatasetError:
+        return False
 
 
 def _is_pack_of(dst: Path, manifest: Manifest, splits: list[str] | None) -> bool:
-    """Whether `dst` is an earlier pack of the same data and splits (then it is updated)."""
-    if not (dst / MANIFEST).is_file():
+    """Whether `dst` is an earlier pack of the same data and splits (then its unchanged files are kept)."""
+    if not _is_pack(dst):
         return False
+    there = Manifest.read(dst)
+    return not there.same_data(manifest) and there.notes["packed"].get("splits") == splits
+
+
+def _read_keys(f: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Some arrays of a sample file, without unpacking the others (its vertices)."""
     try:
-        there = Manifest.read(dst)
-    except DatasetError:
-        return False
-    packed = there.notes.get("packed")
-    return (isinstance(packed, dict) and not there.same_data(manifest)
-            and packed.get("splits") == (sorted(splits) if splits else None))
+        with np.load(f, allow_pickle=False) as z:
+            return {k: np.atleast_1d(z[k]) for k in keys}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise DatasetError(f"dataset file {f} cannot be read ({exc}); make it again") from exc
 
 
 def _units(f: Path, splits: list[str] | None = None) -> list[int]:
-    """The units a sample file holds (those of `splits` only, if given), read without
-    unpacking its vertices."""
+    """The units a sample file holds (those of `splits` only, if given)."""
+    a = _read_keys(f, ("unit", "split"))
+    keep = np.isin(a["split"].astype(str), splits) if splits is not None else np.ones(len(a["unit"]), bool)
+    return a["unit"][keep].tolist()
+
+
+def _same_samples(packed: Path, f: Path, splits: list[str] | None) -> bool:
+    """Whether the earlier pack's file holds exactly the samples `f` would give it (an
+    unreadable one does not: it is written again)."""
+    if not packed.is_file():
+        return False
     try:
-        with np.load(f) as z:
-            units, split = np.atleast_1d(z["unit"]), np.atleast_1d(z["split"]).astype(str)
-    except (OSError, ValueError, KeyError) as exc:
-        raise DatasetError(f"dataset file {f} cannot be read ({exc}); make it again") from exc
-    return units[np.isin(split, splits)].tolist() if splits is not None else units.tolist()
+        return _units(packed) == _units(f, splits)
+    except DatasetError:
+        return False
 
 
 def _splits_in(f: Path) -> set[str]:
-    return set(np.atleast_1d(read_npz(f, "dataset file")["split"]).astype(str))
+    return set(_read_keys(f, ("split",))["split"].astype(str))
 
 
 def _packed(arrays: dict[str, np.ndarray], splits: list[str] | None) -> dict | None:
@@ -105,17 +153,4 @@ def _packed(arrays: dict[str, np.ndarray], splits: list[str] | None) -> dict | N
     return arrays
 
 
-def _copy_shared(src: Path, out: Path) -> None:
-    """What the samples share: every entry of `src` but the samples, the manifest and the
-    folder's own bookkeeping (hidden files)."""
-    for shared in sorted(src.iterdir()):
-        if shared.name.startswith(".") or shared.name in SAMPLE_FOLDERS or shared.name == MANIFEST:
-            continue
-        target = out / shared.name
-        if shared.is_dir():
-            shutil.copytree(shared, target, dirs_exist_ok=True)
-        else:
-            shutil.copy2(shared, target)
-
-
-__all__ = ["pack_dataset"]
+__all__ = ["pack_dataset", "SHARED"]

@@ -29,6 +29,7 @@ from typing import IO, Any
 from tryon.errors import InputFileError, OutputFolderError
 
 __all__ = ["atomic_write", "atomic_path", "atomic_output_dir", "check_output_dir", "claim_work_dir", "publish_dir",
+           "is_being_written",
            "OWNER_MARKER"]
 
 OWNER_MARKER = ".tryon-output.json"
@@ -235,6 +236,21 @@ def _lock(work: Path) -> None:
         os.close(fd)
         raise OutputFolderError(f"another tryon run is writing {work}; wait for it or choose another --out") from exc
     _LOCKS[key] = fd
+
+
+def is_being_written(folder: str | os.PathLike[str]) -> bool:
+    """True while another process holds `folder`'s run lock (a generator writing it)."""
+    lock = Path(folder) / ".lock"
+    if str(Path(folder).resolve()) in _LOCKS or not lock.is_file():
+        return False  # this process's own run, or no run at all
+    fd = os.open(lock, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # closing releases a lock this call took
+    return False
 
 
 def _unlock(work: Path) -> None:
