@@ -60,7 +60,9 @@ def test_a_sample_left_both_in_a_shard_and_pending_is_packed_once(tmp_path):
     src = tmp_path / "poses"
     _dataset(src, [0, 1, 2])
     np.savez(src / "pending" / "0000000.npz", **_sample(0), unit=np.asarray(0))   # a run stopped mid-shard
+    assert _load(src)["unit"].tolist() == [0, 1, 2]
     assert _load(pack_dataset(src, tmp_path / "packed"))["unit"].tolist() == [0, 1, 2]
+    assert not (tmp_path / "packed" / "pending" / "0000000.npz").exists()
 
 
 def test_packing_some_splits_and_then_others_makes_the_copy_again(tmp_path):
