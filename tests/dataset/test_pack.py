@@ -1,6 +1,7 @@
 """Compact copies of datasets (`tryon dataset pack`) on small synthetic pose datasets: half
 precision, updates that keep unchanged files, no sample twice, and no folder lost."""
 
+import shutil
 import subprocess
 import sys
 
@@ -13,9 +14,10 @@ from tryon.dataset.pack import pack_dataset
 from tryon.errors import TryonError
 
 
-def _dataset(folder, units, count=5, shard_size=2):
+def _dataset(folder, units, count=5, shard_size=2, created="2026-11-26T10:00:00+0000", seed=0):
     """A pose dataset of `count` units with the samples `units` made (shards pack as they fill)."""
-    manifest = Manifest("poses", 1, "test", 0, count, shard_size, {"frames": 2}, {"rule": "odd units test"})
+    manifest = Manifest("poses", 1, "test", seed, count, shard_size, {"frames": 2}, {"rule": "odd units test"},
+                        created=created)
     folder.mkdir(parents=True, exist_ok=True)
     store = ShardStore(folder, manifest)
     store.write_manifest()
@@ -27,8 +29,8 @@ def _dataset(folder, units, count=5, shard_size=2):
     return store
 
 
-def _sample(u):
-    x = np.random.default_rng(u).normal(size=(2, 4, 3)).astype(np.float32)
+def _sample(u, shift=0.0):
+    x = np.random.default_rng(u).normal(size=(2, 4, 3)).astype(np.float32) + shift
     return {"split": np.asarray("test" if u % 2 else "train"), "ok": np.asarray(True), "x": x}
 
 
@@ -126,3 +128,26 @@ def test_pack_refuses_a_dataset_a_generator_is_writing(tmp_path):
         holder.kill()
         holder.wait()
     assert _load(pack_dataset(src, tmp_path / "packed"))["unit"].tolist() == [0, 1]
+
+
+def test_pack_replaces_only_an_earlier_pack_of_the_same_dataset_holding_nothing_else(tmp_path):
+    src, dst = tmp_path / "poses", tmp_path / "packed"
+    _dataset(src, [0, 1])
+    pack_dataset(src, dst)
+    (dst / "README.md").write_text("what this data is")
+    with pytest.raises(DatasetError, match="README.md besides the pack"):
+        pack_dataset(src, dst)
+    (dst / "README.md").unlink()
+    other = tmp_path / "other"
+    _dataset(other, [0, 1], seed=7)
+    with pytest.raises(DatasetError, match="other data .*seed"):
+        pack_dataset(other, dst)
+    # made again from scratch (same settings, new samples): its earlier pack is not reused
+    shutil.rmtree(src)
+    store = _dataset(src, [], created="2026-11-27T10:00:00+0000")
+    for u in (0, 1):
+        store.put(u, _sample(u, shift=1.0))
+    with pytest.raises(DatasetError, match="created"):
+        pack_dataset(src, dst)
+    pack_dataset(src, dst, force=True)
+    assert np.abs(_load(dst)["x"].astype(np.float32) - store.load()["x"]).max() < 0.01

@@ -86,6 +86,10 @@ def test_generation_table_smooths_the_hybrid_as_asked(poses):
     assert (exact["smoothing"], smooth["smoothing"]) == (0.0, 1.0)
     assert exact["generation_mean_error_cm"] < smooth["generation_mean_error_cm"]
     assert hybrid_rows((1.0,)) == [smooth]    # as if it were the only one
+    # one embedding smoothed per value gives the targets training learns (rig.target at that smoothing)
+    G = rig.transforms(p[0, -1])
+    assert np.allclose(sequence_targets(rig, x[0], p[0], smoothing=1.0)["kdsm-hybrid"]["target"][-1],
+                       rig.target("kdsm-hybrid", x[0, -1].astype(np.float64), G, smoothing=1.0), atol=1e-12)
 
 
 def test_a_checkpoint_without_smoothing_resumes_only_as_it_was_trained(poses, tmp_path, capsys):

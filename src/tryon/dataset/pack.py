@@ -20,10 +20,11 @@ import numpy as np
 from tryon.dataset.drapes import KIND as DRAPE
 from tryon.dataset.poses import KIND as POSES
 from tryon.dataset.store import MANIFEST, DatasetError, Manifest, ShardStore
-from tryon.io.atomic import atomic_output_dir, atomic_write, is_being_written
+from tryon.io.atomic import OWNER_MARKER, atomic_output_dir, atomic_write, is_being_written
 from tryon.io.npz import read_npz
 
 SHARED = {DRAPE: ("references",), POSES: ("rest.npz", "rest.json")}  # what every sample of a kind shares
+PACK_ENTRIES = (MANIFEST, OWNER_MARKER, ".lock", "shards", "pending")
 
 
 def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: list[str] | None = None) -> Path:
@@ -33,26 +34,27 @@ def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: 
     src, dst = Path(src), Path(dst)
     manifest = Manifest.read(src)
     splits = sorted(set(splits)) if splits else None
-    _check_folders(src, dst, manifest, force)
+    replaceable = _check_folders(src, dst, manifest, force)
     files = _sample_files(src, manifest)
     if splits is not None:
         known = set().union(*(_splits_in(f) for f in files))
         unknown = sorted(set(splits) - known)
         if unknown:
             raise DatasetError(f"{src} has no samples in the split(s) {', '.join(unknown)}; it has {', '.join(sorted(known))}")
-    earlier = dst if _is_pack_of(dst, manifest, splits) else None
-    with atomic_output_dir(dst, force=force or _is_pack(dst)) as out:   # a pack, even one without tryon's marker, is replaced
+    earlier = dst if replaceable and Manifest.read(dst).notes["packed"].get("splits") == splits else None
+    with atomic_output_dir(dst, force=force or replaceable) as out:
         for f in files:
             rel = f.relative_to(src)
+            (out / rel).parent.mkdir(parents=True, exist_ok=True)
             if earlier is not None and _same_samples(earlier / rel, f, splits):
-                (out / rel).parent.mkdir(parents=True, exist_ok=True)
-                os.link(earlier / rel, out / rel)     # the same bytes: git sees no change
+                _link(earlier / rel, out / rel)     # the same bytes: git sees no change
                 continue
             arrays = _packed(read_npz(f, "dataset file"), splits)
             if arrays is not None:
-                (out / rel).parent.mkdir(parents=True, exist_ok=True)
                 with atomic_write(out / rel, "wb") as fh:
                     np.savez_compressed(fh, **arrays)
+        if earlier is not None and (earlier / OWNER_MARKER).is_file():
+            _link(earlier / OWNER_MARKER, out / OWNER_MARKER, replace=True)
         for name in SHARED[manifest.kind]:
             copy = shutil.copytree if (src / name).is_dir() else shutil.copy2
             copy(src / name, out / name)
@@ -63,8 +65,10 @@ def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: 
     return dst
 
 
-def _check_folders(src: Path, dst: Path, manifest: Manifest, force: bool) -> None:
-    """Refuse, before any work, a pack that could destroy a dataset or read a half-written one."""
+def _check_folders(src: Path, dst: Path, manifest: Manifest, force: bool) -> bool:
+    """Refuse, before any work, a pack that could destroy a dataset or another folder, or
+    read a half-written one. Returns whether `dst` is an earlier pack of this very dataset
+    holding nothing else (which packing again replaces without --force)."""
     if manifest.kind not in SHARED:
         raise DatasetError(f"{src} holds a {manifest.kind!r} dataset; tryon packs {', '.join(SHARED)} datasets")
     missing = [name for name in SHARED[manifest.kind] if not (src / name).exists()]
@@ -73,11 +77,42 @@ def _check_folders(src: Path, dst: Path, manifest: Manifest, force: bool) -> Non
     a, b = src.resolve(), dst.resolve()
     if a == b or a in b.parents or b in a.parents:
         raise DatasetError(f"the pack of {src} must go to a folder outside it (and not contain it); got --out {dst}")
-    if is_being_written(src):
-        raise DatasetError(f"a generator is writing {src}; pack it once that run has stopped")
-    if (dst / MANIFEST).is_file() and not _is_pack(dst) and not force:
-        raise DatasetError(f"{dst} holds a dataset, not a pack of one; packing would replace it: choose another "
-                           f"--out, or pass --force to replace it")
+    for folder in (src, dst):
+        if is_being_written(folder):
+            raise DatasetError(f"a generator is writing {folder}; pack once that run has stopped")
+    if not (dst / MANIFEST).is_file():
+        return False
+    why = _not_replaceable(dst, manifest)
+    if why and not force:
+        raise DatasetError(f"{dst} {why}; packing would replace it: choose another --out, or pass --force")
+    return not why
+
+
+def _not_replaceable(dst: Path, manifest: Manifest) -> str | None:
+    """Why the dataset folder `dst` is not simply an earlier pack of `manifest`'s dataset."""
+    try:
+        there = Manifest.read(dst)
+    except DatasetError:
+        return "holds a damaged dataset manifest"
+    if not isinstance(there.notes.get("packed"), dict):
+        return "holds a dataset, not a pack of one (a pack made before packs were marked needs --force once)"
+    differs = there.same_data(manifest) + (["created"] if there.created != manifest.created else [])
+    if differs:
+        return f"is a pack of other data (its {', '.join(differs)} differ)"
+    extra = sorted(p.name for p in dst.iterdir() if p.name not in PACK_ENTRIES + SHARED[manifest.kind])
+    if extra:
+        return f"holds {', '.join(extra)} besides the pack"
+    return None
+
+
+def _link(a: Path, b: Path, replace: bool = False) -> None:
+    """`b` as a hard link to `a` (a copy where the file system has no hard links)."""
+    if replace:
+        b.unlink(missing_ok=True)
+    try:
+        os.link(a, b)
+    except OSError:
+        shutil.copy2(a, b)
 
 
 def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
@@ -91,21 +126,6 @@ def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
     if not files:
         raise DatasetError(f"{src} holds no samples to pack")
     return files
-
-
-def _is_pack(folder: Path) -> bool:
-    try:
-        return isinstance(Manifest.read(folder).notes.get("packed"), dict)
-    except DatasetError:
-        return False
-
-
-def _is_pack_of(dst: Path, manifest: Manifest, splits: list[str] | None) -> bool:
-    """Whether `dst` is an earlier pack of the same data and splits (then its unchanged files are kept)."""
-    if not _is_pack(dst):
-        return False
-    there = Manifest.read(dst)
-    return not there.same_data(manifest) and there.notes["packed"].get("splits") == splits
 
 
 def _read_keys(f: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:

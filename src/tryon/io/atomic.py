@@ -243,10 +243,13 @@ def is_being_written(folder: str | os.PathLike[str]) -> bool:
     lock = Path(folder) / ".lock"
     if str(Path(folder).resolve()) in _LOCKS or not lock.is_file():
         return False  # this process's own run, or no run at all
-    fd = os.open(lock, os.O_RDONLY)
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+        fd = os.open(lock, os.O_RDONLY)
+    except OSError as exc:
+        raise OutputFolderError(f"cannot read {lock} to see whether a run is writing {folder} ({exc.strerror})") from exc
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)   # shared: conflicts with a run's exclusive lock only
+    except BlockingIOError:
         return True
     finally:
         os.close(fd)  # closing releases a lock this call took
