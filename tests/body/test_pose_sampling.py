@@ -7,7 +7,8 @@ import pytest
 from tryon.body.anny_model import ShapeParams, body_model
 from tryon.body.motion import load_motion
 from tryon.body.pose import identity_pose, matrix_to_axis_angle, posed_body
-from tryon.body.pose_sampling import FORWARD, LIMITS, _limb, arms_in_torso, keyframed_poses, random_pose, varied_motion
+from tryon.body.pose_sampling import (FORWARD, LIMITS, _limb, angle_names, arms_in_torso, keyframed_poses,
+                                     pose_from_angles, random_pose, varied_motion)
 
 pytestmark = [pytest.mark.anny]
 
@@ -37,6 +38,23 @@ def test_random_poses_respect_the_joint_limits(shape):
             assert _angle(wr - el, el - sh) <= LIMITS["elbow_flexion"][1] + 1
             hip, knee, foot = (body.heads[f"{b}.{side}"] for b in ("upperleg01", "lowerleg01", "foot"))
             assert _angle(foot - knee, knee - hip) <= LIMITS["knee_flexion"][1] + 1
+
+
+def test_a_pose_from_joint_angles_points_the_limbs_as_named(shape):
+    """What `tryon view --live`'s sliders set: each arm's elevation from straight down and
+    azimuth towards the front, the elbow's and knee's bend."""
+    assert len(angle_names()) == 15 and {n.split(".")[0] for n in angle_names()} == set(LIMITS)
+    body = posed_body(shape, pose_from_angles(shape, {"arm_elevation.L": 90.0, "arm_azimuth.R": 90.0,
+                                                       "arm_elevation.R": 90.0, "elbow_flexion.L": 90.0,
+                                                       "hip_flexion.R": 45.0, "knee_flexion.R": 60.0}))
+    sh, el, wr = (body.heads[f"{b}.L"] for b in ("upperarm01", "lowerarm01", "wrist"))
+    assert _angle(el - sh, np.array([1.0, 0.0, 0.0])) < 2.0            # left arm out to its side, level
+    assert _angle(wr - el, el - sh) == pytest.approx(90.0, abs=2.0)
+    sh, el = body.heads["upperarm01.R"], body.heads["lowerarm01.R"]
+    assert _angle(el - sh, FORWARD) < 2.0                                # right arm straight ahead
+    hip, knee, foot = (body.heads[f"{b}.R"] for b in ("upperleg01", "lowerleg01", "foot"))
+    assert _angle(knee - hip, np.array([0.0, 0.0, -1.0])) == pytest.approx(45.0, abs=2.0)
+    assert _angle(foot - knee, knee - hip) == pytest.approx(60.0, abs=2.0)
 
 
 def test_an_arm_through_the_chest_is_caught(shape):

@@ -219,7 +219,7 @@ def test_the_kdsm_bench_writes_every_table(poses, tmp_path):
         "kdsm-hybrid (h)", "kdsm-hybrid (h2)", "jin-uvn"]
 
 
-def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_path):
+def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_path, capsys):
     import json
 
     from tryon.cli import main
@@ -249,6 +249,7 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     scene = json.loads((write_viewer(drape, animation="arm-raise") / "scene.json").read_text())
     assert scene["frames"] == 16 and scene["garment"]["vertices"] == n
     assert any("kdsm" in line and "ms per frame" in line for line in scene["info"])
+    _live_posing_of(drape, tmp_path / "m" / "model.npz", n, tmp_path, capsys)
     # the bench's held-out motion: the model against the simulated animation of the same drape, with a picture
     from PIL import Image
 
@@ -276,6 +277,35 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
     truth = _at_times(sim["positions"], sim["times"], got["times"][at:at + 1])[0]
     assert model["sampled_frames_error_cm"] == pytest.approx(
         100 * np.linalg.norm(got["positions"][at] - truth, axis=1).mean(), rel=1e-6)
+
+
+def _live_posing_of(drape, model_path, n, tmp_path, capsys):
+    """`tryon view --live`: the sliders' pose predicted by the model, served to the page."""
+    from tryon.body.pose import matrix_to_axis_angle
+    from tryon.body.pose_sampling import pose_from_angles
+    from tryon.cli import main
+    from tryon.errors import TryonError
+    from tryon.kdsm.live import LivePoser
+
+    poser = LivePoser(drape, model_path)
+    start, raised = poser.frame({}), poser.frame({"arm_elevation.L": 120.0, "knee_flexion.R": 40.0})
+    pose = matrix_to_axis_angle(pose_from_angles(poser.shape, poser.angles({"arm_elevation.L": 120.0, "knee_flexion.R": 40.0})))
+    rig = poser.model.rig
+    assert np.allclose(raised["body"], rig.body(rig.transforms(pose)))
+    predicted = poser.model.predict(pose, poser.net)
+    moved = np.linalg.norm(raised["garment"] - predicted, axis=1)
+    assert raised["garment"].shape == (n, 3) and np.median(moved) == 0.0   # only what lay in the body was pushed out
+    assert np.linalg.norm(raised["garment"] - start["garment"], axis=1).max() > 0.03 and raised["ms"] > 0
+    assert raised["strain"].shape == (n,) and np.isfinite(raised["strain"]).all()
+    with pytest.raises(TryonError, match="unknown pose angle"):
+        poser.frame({"tail": 3.0})
+    with pytest.raises(TryonError, match="outside the range"):
+        poser.frame({"arm_elevation.L": 170.0})
+    assert main(["view", str(drape), "--pose", "arm_elevation.L=120"]) == 2   # --pose belongs to --live
+    png = tmp_path / "live.png"
+    assert main(["view", str(drape), "--live", "--model", str(model_path), "--pose", "arm_elevation.L=120",
+                 "--screenshot", str(png), "--force"]) == 0
+    assert png.exists() and "ready: live" in capsys.readouterr().out   # the page drew the pose the server predicted
 
 
 def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):

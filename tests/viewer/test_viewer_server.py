@@ -2,8 +2,10 @@
 files `write_viewer` exported."""
 
 import http.client
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tryon.errors import InputFileError
@@ -49,3 +51,39 @@ def test_a_linked_or_incomplete_folder_is_refused(tmp_path):
     (folder / "scene.bin").symlink_to(folder / "secret.txt")
     with pytest.raises(InputFileError, match="scene.bin"):
         start_server(folder)
+
+
+class _FakeLive:
+    """A live source of two garment vertices and one body vertex."""
+
+    method = "fake"
+
+    def controls(self):
+        return [{"name": "arm_elevation.L", "label": "arm", "min": 0.0, "max": 90.0, "value": 45.0}]
+
+    def frame(self, values):
+        from tryon.errors import TryonError
+
+        if set(values) - {"arm_elevation.L"}:
+            raise TryonError("unknown pose angle")
+        a = values.get("arm_elevation.L", 45.0)
+        return {"garment": np.full((2, 3), a), "body": np.zeros((1, 3)), "strain": np.array([1.0, 2.0]), "ms": 3.5}
+
+
+def test_a_live_source_is_served_as_sliders_and_posed_frames(tmp_path):
+    folder = _viewer_folder(tmp_path / "viewer")
+    plain, live = start_server(folder), start_server(folder, live=_FakeLive())
+    try:
+        assert _get(plain.server_address[1], "/live.json")[0] == 404   # without --live there is no such page
+        port = live.server_address[1]
+        status, body = _get(port, "/live.json")
+        assert status == 200 and json.loads(body)["controls"][0]["name"] == "arm_elevation.L"
+        status, body = _get(port, "/live?arm_elevation.L=30")
+        assert status == 200
+        assert np.frombuffer(body, "<f4").tolist() == [30.0] * 6 + [0.0] * 3 + [1.0, 2.0, 3.5]
+        assert _get(port, "/live?tail=3")[0] == 400
+        assert _get(port, "/live?arm_elevation.L=high")[0] == 400
+        assert _get(port, "/live?arm_elevation.L=30", host=f"attacker.example:{port}")[0] == 403
+    finally:
+        plain.shutdown()
+        live.shutdown()

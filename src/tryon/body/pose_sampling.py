@@ -89,18 +89,45 @@ def arms_in_torso(shape: BodyShape, R: np.ndarray, margin: float = 0.01) -> bool
     return False
 
 
+ARM_KEYS = ("arm_elevation", "arm_azimuth", "elbow_flexion")
+LEG_KEYS = ("hip_flexion", "hip_abduction", "knee_flexion")
+SPINE_KEYS = ("spine_bend", "spine_side", "spine_twist")
+
+
+def angle_names() -> list[str]:
+    """The angles of a whole-body pose (`pose_from_angles`): each limb's per side
+    (`arm_elevation.L`, ...), then the spine's."""
+    return [f"{k}.{side}" for side, _ in SIDES for k in ARM_KEYS + LEG_KEYS] + list(SPINE_KEYS)
+
+
 def _draw_pose(shape: BodyShape, rng: np.random.Generator) -> np.ndarray:
+    angles = {}
+    for side, _ in SIDES:   # this order of draws is what every dataset's seed has made: keep it
+        for k in ARM_KEYS + LEG_KEYS:
+            angles[f"{k}.{side}"] = rng.uniform(*LIMITS[k])
+    angles.update({k: rng.uniform(*LIMITS[k]) for k in SPINE_KEYS})
+    return pose_from_angles(shape, angles)
+
+
+def pose_from_angles(shape: BodyShape, angles: dict[str, float]) -> np.ndarray:
+    """The whole-body pose [J,3,3] of joint angles in degrees (`angle_names`, as `LIMITS`
+    measures them; a missing one takes its range's value nearest 0, i.e. the arms as
+    low as the limits allow and the rest straight)."""
+    def a(name: str) -> float:
+        lo, hi = LIMITS[name.split(".")[0]]
+        return float(angles.get(name, min(max(0.0, lo), hi)))
+
     R = identity_pose(shape)
     for side, sign in SIDES:
-        e, az = np.radians(rng.uniform(*LIMITS["arm_elevation"])), np.radians(rng.uniform(*LIMITS["arm_azimuth"]))
+        e, az = np.radians(a(f"arm_elevation.{side}")), np.radians(a(f"arm_azimuth.{side}"))
         arm = np.array([sign * np.sin(e) * np.cos(az), -np.sin(e) * np.sin(az), -np.cos(e)])
         _limb(R, shape, f"upperarm01.{side}", f"lowerarm01.{side}", f"wrist.{side}", arm,
-              rng.uniform(*LIMITS["elbow_flexion"]), FORWARD)
-        h, ab = np.radians(rng.uniform(*LIMITS["hip_flexion"])), np.radians(rng.uniform(*LIMITS["hip_abduction"]))
+              a(f"elbow_flexion.{side}"), FORWARD)
+        h, ab = np.radians(a(f"hip_flexion.{side}")), np.radians(a(f"hip_abduction.{side}"))
         leg = _unit(np.array([sign * np.sin(ab), -np.sin(h) * np.cos(ab), -np.cos(h) * np.cos(ab)]))
         _limb(R, shape, f"upperleg01.{side}", f"lowerleg01.{side}", f"foot.{side}", leg,
-              rng.uniform(*LIMITS["knee_flexion"]), -FORWARD)
-    spine = np.radians([rng.uniform(*LIMITS[k]) for k in ("spine_bend", "spine_side", "spine_twist")])
+              a(f"knee_flexion.{side}"), -FORWARD)
+    spine = np.radians([a(k) for k in SPINE_KEYS])
     bend = axis_angle(np.array([-spine[0], 0.0, 0.0])) @ axis_angle(np.array([0.0, spine[1], 0.0])) \
         @ axis_angle(np.array([0.0, 0.0, spine[2]]))
     half = axis_angle(0.5 * _rotvec(bend))

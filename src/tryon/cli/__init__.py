@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
@@ -198,20 +199,50 @@ def _time_parallel_runner(args: argparse.Namespace):
     return run
 
 
+def _pose_angles(items: list[str] | None) -> dict[str, float]:
+    """`--pose NAME=DEG ...` as a dict (the names and ranges are checked by the live poser)."""
+    angles = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        try:
+            angles[name] = float(value) if sep else float("nan")
+        except ValueError:
+            angles[name] = float("nan")
+        if not math.isfinite(angles[name]):
+            raise TryonError(f"--pose {item!r}: give NAME=DEGREES, e.g. arm_elevation.L=120")
+    return angles
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     import time
 
     from tryon.viewer import screenshot_viewer, start_server, write_viewer
 
+    pose = _pose_angles(args.pose)
+    live = None
+    if args.live:
+        from tryon.kdsm.live import LivePoser
+        from tryon.kdsm.model import shipped_model_path
+
+        if args.animation:
+            raise TryonError("--live poses the drape itself; leave out --animation")
+        live = LivePoser(args.drape_dir, args.model or shipped_model_path())
+        live.angles(pose)   # refuse unknown or out-of-range --pose angles before any page is written
+    elif args.model or pose:
+        raise TryonError("--model and --pose are for --live")
     out = write_viewer(args.drape_dir, animation=args.animation, force=args.force)
     print(f"viewer written to {out}")
     if args.screenshot:
-        status = screenshot_viewer(out, args.screenshot, mode=args.mode)
-        print(f"screenshot ({args.mode}) -> {args.screenshot}: {status}")
+        status = screenshot_viewer(out, args.screenshot, mode=args.mode, live=live, pose=pose)
+        print(f"screenshot ({args.mode or 'default colouring'}) -> {args.screenshot}: {status}")
     if args.no_serve or args.screenshot:
         return 0
-    server = start_server(out, args.port)
+    server = start_server(out, args.port, live=live)
     url = f"http://127.0.0.1:{server.server_address[1]}/index.html"
+    if pose:
+        from urllib.parse import urlencode
+
+        url += "?" + urlencode(pose)
     print(f"serving {url} (Ctrl-C to stop)")
     if args.open:
         import webbrowser
@@ -479,8 +510,14 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--open", action="store_true", help="open the page in the default browser")
     v.add_argument("--no-serve", action="store_true", help="only write DRAPE_DIR/viewer")
     v.add_argument("--screenshot", help="save a picture of the page (headless Chromium) to this PNG instead of serving")
-    v.add_argument("--mode", choices=["strain", "pressure", "plain"], default="strain", help="colouring for --screenshot")
+    v.add_argument("--mode", choices=["strain", "pressure", "plain"],
+                   help="colouring for --screenshot (default: strain; with --live, the fabric)")
     v.add_argument("--force", action="store_true", help="replace DRAPE_DIR/viewer even if tryon did not write it")
+    v.add_argument("--live", action="store_true",
+                   help="pose sliders: the garment in each pose predicted by a KDSM model as the sliders move")
+    v.add_argument("--model", help="--live: the KDSM model (default: the shipped hybrid, T-shirt M)")
+    v.add_argument("--pose", nargs="+", metavar="NAME=DEG",
+                   help="--live: where sliders start, e.g. arm_elevation.L=120 elbow_flexion.R=60")
     v.set_defaults(func=_cmd_view)
 
     r = sub.add_parser("body-range", help="the BMI range the Anny body reaches without distortion")

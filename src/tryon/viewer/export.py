@@ -15,11 +15,12 @@ import shutil
 import threading
 from importlib import resources
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
 
-from tryon.errors import InputFileError
+from tryon.errors import InputFileError, TryonError
 from tryon.io.atomic import atomic_output_dir, atomic_write
 from tryon.io.json_safe import dumps_json
 from tryon.render.appearance import appearance
@@ -133,6 +134,37 @@ CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; c
                  ".txt": "text/plain; charset=utf-8", ".json": "application/json", ".bin": "application/octet-stream"}
 
 
+class LiveSource(Protocol):
+    """What `tryon view --live` serves: sliders, and the scene in the pose they set."""
+
+    method: str
+
+    def controls(self) -> list[dict]: ...                     # name, label, min, max, value
+
+    def frame(self, values: dict[str, float]) -> dict: ...    # garment [n,3], body [m,3], strain [n] (%), ms
+
+
+class LiveRequestError(ValueError):
+    """A live request the page should not have made (unknown or out-of-range angles)."""
+
+
+def _live_answer(live: LiveSource, name: str, query: str) -> bytes:
+    """`live.json`: the sliders. `live?NAME=DEG&...`: the posed scene as float32, garment
+    positions, body positions, garment strain (%), then the prediction's milliseconds."""
+    from urllib.parse import parse_qsl
+
+    if name == "live.json":
+        return dumps_json({"controls": live.controls(), "method": live.method}).encode()
+    try:
+        values = {k: float(v) for k, v in parse_qsl(query, strict_parsing=bool(query))}
+        f = live.frame(values)
+    except (ValueError, TryonError) as exc:
+        raise LiveRequestError(str(exc)) from exc
+    parts = [np.asarray(f["garment"]).ravel(), np.asarray(f["body"]).ravel(), np.asarray(f["strain"]).ravel(),
+             np.asarray([f["ms"]])]
+    return np.concatenate(parts).astype("<f4").tobytes()
+
+
 class _ViewerHandler(http.server.BaseHTTPRequestHandler):
     """Serves exactly the files `write_viewer` exported (read when the server starts), to
     requests whose Host header names this loopback server: no directory listings, no
@@ -141,6 +173,7 @@ class _ViewerHandler(http.server.BaseHTTPRequestHandler):
 
     files: dict[str, bytes] = {}
     allowed_hosts: frozenset[str] = frozenset()
+    live: LiveSource | None = None
 
     def do_GET(self) -> None:  # noqa: N802 - the base class's name
         self._answer(with_body=True)
@@ -152,13 +185,21 @@ class _ViewerHandler(http.server.BaseHTTPRequestHandler):
         if self.headers.get("Host", "") not in self.allowed_hosts:
             self.send_error(403, "unexpected Host header")
             return
-        name = self.path.split("?", 1)[0].split("#", 1)[0].lstrip("/") or "index.html"
+        path, _, query = self.path.split("#", 1)[0].partition("?")
+        name = path.lstrip("/") or "index.html"
         body = self.files.get(name)
+        if body is None and self.live is not None and name in ("live.json", "live"):
+            try:
+                body = _live_answer(self.live, name, query)
+            except LiveRequestError as exc:
+                self.send_error(400, str(exc)[:300])
+                return
         if body is None:
             self.send_error(404)
             return
         self.send_response(200)
         self.send_header("Content-Type", CONTENT_TYPES.get(Path(name).suffix, "application/octet-stream"))
+        self.send_header("Cache-Control", "no-store")
         self.send_header("Content-Length", str(len(body)))
         self.send_header("X-Content-Type-Options", "nosniff")
         self.end_headers()
@@ -180,11 +221,12 @@ def _exported_files(directory: Path) -> dict[str, bytes]:
     return files
 
 
-def start_server(directory: str | Path, port: int = 0) -> http.server.ThreadingHTTPServer:
+def start_server(directory: str | Path, port: int = 0, live: LiveSource | None = None) -> http.server.ThreadingHTTPServer:
     """An HTTP server for the viewer in `directory` on 127.0.0.1 only (port 0: any free
-    port), running in a background thread; call `.shutdown()` to stop it."""
+    port), running in a background thread; call `.shutdown()` to stop it. `live`: a source
+    of posed frames, which the page then offers as pose sliders (`live.json`, `live?...`)."""
     files = _exported_files(Path(directory))
-    handler = type("ViewerHandler", (_ViewerHandler,), {"files": files})
+    handler = type("ViewerHandler", (_ViewerHandler,), {"files": files, "live": live})
     server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
     bound = server.server_address[1]
     handler.allowed_hosts = frozenset({f"127.0.0.1:{bound}", f"localhost:{bound}"})

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from tryon.errors import TryonError
-from tryon.viewer.export import start_server
+from tryon.viewer.export import LiveSource, start_server
 
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 # Software WebGL (SwiftShader) and no network chatter: the page only talks to 127.0.0.1.
@@ -37,17 +37,22 @@ def _chromium(browser: str, profile: str, size: tuple[int, int], extra: list[str
         raise TryonError(f"headless Chromium did not finish within {timeout:.0f} s") from exc
 
 
-def screenshot_viewer(viewer_dir: str | Path, png: str | Path, mode: str = "strain", frame: str = "last",
-                      size: tuple[int, int] = (900, 700), timeout: float = 120.0) -> str:
+def screenshot_viewer(viewer_dir: str | Path, png: str | Path, mode: str | None = None, frame: str = "last",
+                      size: tuple[int, int] = (900, 700), timeout: float = 120.0, live: LiveSource | None = None,
+                      pose: dict[str, float] | None = None) -> str:
     """Load `viewer_dir` (from `write_viewer`) in headless Chromium with the given colouring
-    (strain, pressure or plain) and frame, save a screenshot to `png` and return the page's
-    status line ("ready: ..." when the scene was drawn)."""
-    if mode not in ("strain", "pressure", "plain"):
+    (strain, pressure or plain; None: the page's own, strain or, live, the fabric) and frame, save a screenshot to `png` and return the page's
+    status line ("ready: ..." when the scene was drawn). `live`: serve it with pose
+    sliders (`start_server`), set to `pose` (degrees by slider name)."""
+    from urllib.parse import urlencode
+
+    if mode not in (None, "strain", "pressure", "plain"):
         raise TryonError(f"unknown viewer mode {mode!r}; use strain, pressure or plain")
     browser = find_browser()
     png = Path(png).resolve()
-    server = start_server(viewer_dir)
-    url = f"http://127.0.0.1:{server.server_address[1]}/index.html?mode={mode}&frame={frame}"
+    server = start_server(viewer_dir, live=live)
+    query = urlencode({**({"mode": mode} if mode else {}), "frame": frame, **(pose or {})})
+    url = f"http://127.0.0.1:{server.server_address[1]}/index.html?{query}"
     try:
         with tempfile.TemporaryDirectory() as profile:
             shot = _chromium(browser, profile, size, [f"--screenshot={png}", url], timeout)

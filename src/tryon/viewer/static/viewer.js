@@ -1,7 +1,9 @@
 // tryon web viewer: body and garment of a drape or animation, fit-map colouring, orbit
 // controls and a frame slider. Reads scene.json (layout) and scene.bin (float32 / uint32
 // arrays) written by tryon.viewer.export. URL parameters: mode=strain|pressure|plain,
-// frame=N|last.
+// frame=N|last. Served with `tryon view --live`, the page also offers pose sliders
+// (live.json) and shows the garment a network predicts for each pose (live?ANGLE=DEG...);
+// URL parameters named like the sliders (arm_elevation.L=120) set their start.
 import * as THREE from './three-bundle.min.js';
 
 const statusEl = document.getElementById('status');
@@ -108,6 +110,7 @@ async function main() {
     el.querySelector('.label').textContent = mode === 'strain' ? 'strain %' : 'contact pressure kPa';
   }
 
+  let liveStrain = null;  // the strain of the live pose, when the sliders drive the scene
   function colour(frame) {
     const mode = modeEl.value;
     const attr = garment.geometry.getAttribute('color');
@@ -116,7 +119,8 @@ async function main() {
       const cloth = toLinear(meta.colors.cloth);
       for (let i = 0; i < g.vertices; i++) out.set(cloth, 3 * i);
     } else {
-      const values = mode === 'strain' ? strain.subarray(frame * g.vertices, (frame + 1) * g.vertices) : pressure;
+      const values = mode !== 'strain' ? pressure
+        : (liveStrain || strain.subarray(frame * g.vertices, (frame + 1) * g.vertices));
       const max = mode === 'strain' ? meta.strain_max : meta.pressure_max;
       for (let i = 0; i < g.vertices; i++) out.set(toLinear(turbo(values[i] / max)), 3 * i);
     }
@@ -167,7 +171,66 @@ async function main() {
     render();
   });
   show(Number(slider.value));
+  const live = await fetch('live.json').then((r) => (r.ok ? r.json() : null)).catch(() => null);
+  if (live) {
+    await startLive(live, { garment, body, nG, nB, nV: g.vertices, colour, render, modeEl,
+      setStrain: (s) => { liveStrain = s; } });
+    return;
+  }
   statusEl.textContent = `ready: ${g.vertices} garment vertices, ${meta.frames} frames (three.js r${THREE.REVISION})`;
+  document.body.dataset.ready = '1';
+}
+
+// The pose sliders of `tryon view --live`: every change asks the server for the posed
+// scene (one request at a time; the latest slider values win).
+async function startLive(live, s) {
+  document.getElementById('frame-row').style.display = 'none';
+  s.modeEl.querySelector('option[value="pressure"]').disabled = true;
+  // a network's millimetres of noise read as several % of strain on centimetre edges: show the fabric unless asked
+  if (s.modeEl.value === 'pressure' || !params.get('mode')) s.modeEl.value = 'plain';
+  const box = document.getElementById('live');
+  box.innerHTML = `<div class="live-title">pose (${live.method}, live)</div>`;
+  const inputs = live.controls.map((c) => {
+    const row = document.createElement('label');
+    row.className = 'live-row';
+    const start = params.has(c.name) ? Number(params.get(c.name)) : c.value;
+    row.innerHTML = `<span>${c.label}</span><input type="range" min="${c.min}" max="${c.max}" step="1" value="${start}">`
+      + `<span class="deg">${start.toFixed(0)}°</span>`;
+    box.appendChild(row);
+    const input = row.querySelector('input');
+    input.addEventListener('input', () => { row.querySelector('.deg').textContent = `${Number(input.value).toFixed(0)}°`; ask(); });
+    return [c.name, input];
+  });
+  let busy = false, again = false;
+  async function ask() {
+    if (busy) { again = true; return; }
+    busy = true;
+    try {
+      do {
+        again = false;
+        const query = inputs.map(([name, input]) => `${encodeURIComponent(name)}=${input.value}`).join('&');
+        const response = await fetch(`live?${query}`);
+        if (!response.ok) throw new Error(`live pose: ${response.status} ${response.statusText}`);
+        const a = new Float32Array(await response.arrayBuffer());
+        if (a.length !== s.nG + s.nB + s.nV + 1) throw new Error('live pose: the server sent another mesh than this page shows');
+        for (const [mesh, from, n] of [[s.garment, 0, s.nG], [s.body, s.nG, s.nB]]) {
+          const attr = mesh.geometry.getAttribute('position');
+          attr.array.set(a.subarray(from, from + n));
+          attr.needsUpdate = true;
+          mesh.geometry.computeVertexNormals();
+        }
+        s.setStrain(a.subarray(s.nG + s.nB, s.nG + s.nB + s.nV));
+        s.colour(0);
+        s.render();
+        statusEl.textContent = `ready: live, ${a[a.length - 1].toFixed(1)} ms per pose (${s.nV} garment vertices)`;
+      } while (again);
+    } catch (err) {
+      statusEl.textContent = `error: ${err.message}`;
+    } finally {
+      busy = false;
+    }
+  }
+  await ask();
   document.body.dataset.ready = '1';
 }
 

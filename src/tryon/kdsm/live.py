@@ -1,0 +1,91 @@
+"""Live posing: the garment of a drape in whatever pose the viewer's sliders set, predicted
+by a trained network as they move (`tryon view DRAPE --live`).
+
+The sliders are the joint angles the pose datasets draw from (`pose_sampling.LIMITS`:
+each arm's elevation, azimuth and elbow, each leg's hip and knee, the spine's bend, side
+bend and twist), over the ranges the network was trained on. A pose is one forward pass
+and one reconstruction (about 10-20 ms here), the body skinned to it, vertices the
+network put inside the body pushed out as `tryon animate --method kdsm` does.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tryon.errors import TryonError
+
+START = {"arm_elevation.L": 45.0, "arm_elevation.R": 45.0}   # near the drape's A-pose; the rest straight
+
+
+class LivePoser:
+    """A drape and a trained model, ready to give the garment in any pose of the sliders."""
+
+    def __init__(self, drape_dir: str | Path, model_path: str | Path):
+        from tryon.body.anny_model import ShapeParams, body_model
+        from tryon.drape.animate import load_drape
+        from tryon.kdsm.animate import _check_garment
+        from tryon.kdsm.model import KdsmModel
+
+        state = load_drape(drape_dir)
+        model = KdsmModel.load(model_path)
+        _check_garment(model, state, model_path)
+        self.shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"])).detached()
+        self.model, self.how = model.on_drape(state["x"], state["faces"], state["corner_uv"], state["face_panel"],
+                                              self.shape)
+        self.net = self.model.build_net() if self.model.method != "skinning" else None
+        self.faces, self.corner_uv = np.asarray(state["faces"]), np.asarray(state["corner_uv"])
+        self.method = self.model.method
+        self._lock = threading.Lock()   # the server answers requests in threads; the network runs one at a time
+
+    def controls(self) -> list[dict]:
+        """The sliders: name, label, range (degrees) and starting value."""
+        from tryon.body.pose_sampling import LIMITS, angle_names
+
+        out = []
+        for name in angle_names():
+            key, _, side = name.partition(".")
+            lo, hi = LIMITS[key]
+            label = key.replace("_", " ") + {"L": " (left)", "R": " (right)", "": ""}[side]
+            out.append({"name": name, "label": label, "min": lo, "max": hi,
+                        "value": START.get(name, min(max(0.0, lo), hi))})
+        return out
+
+    def angles(self, values: dict[str, float]) -> dict[str, float]:
+        """`values` checked against the sliders: known names, finite, within range."""
+        known = {c["name"]: c for c in self.controls()}
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise TryonError(f"unknown pose angle(s) {', '.join(unknown)}; the angles are {', '.join(known)}")
+        for name, v in values.items():
+            lo, hi = known[name]["min"], known[name]["max"]
+            if not (np.isfinite(v) and lo <= v <= hi):
+                raise TryonError(f"{name} = {v} is outside the range the model was trained on ({lo:g} to {hi:g} degrees)")
+        return {**{c["name"]: c["value"] for c in known.values()}, **values}
+
+    def frame(self, values: dict[str, float]) -> dict[str, np.ndarray | float]:
+        """The garment [n,3] and body [m,3] in the pose of `values` (degrees by slider
+        name; the others at their start), the garment's per-vertex strain in % and the
+        milliseconds the prediction took."""
+        from tryon.body.pose import matrix_to_axis_angle
+        from tryon.body.pose_sampling import pose_from_angles
+        from tryon.kdsm.animate import PUSH_DEPTH, PUSH_GAP
+        from tryon.sim.collision import push_outside
+        from tryon.viewer.export import vertex_strain_percent
+
+        pose = matrix_to_axis_angle(pose_from_angles(self.shape, self.angles(values)))
+        with self._lock:
+            tic = time.perf_counter()
+            x = self.model.predict(pose, self.net)
+            ms = 1000.0 * (time.perf_counter() - tic)
+            rig = self.model.rig
+            body = rig.body(rig.transforms(pose))
+        x, _, _ = push_outside(x, body, rig.shape.faces, PUSH_GAP, max_depth=PUSH_DEPTH)
+        strain = vertex_strain_percent(x[None], self.faces, self.corner_uv)[0]
+        return {"garment": x, "body": body, "strain": strain, "ms": ms}
+
+
+__all__ = ["LivePoser", "START"]
