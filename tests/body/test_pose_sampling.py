@@ -40,6 +40,16 @@ def test_random_poses_respect_the_joint_limits(shape):
             assert _angle(foot - knee, knee - hip) <= LIMITS["knee_flexion"][1] + 1
 
 
+def test_the_random_angles_are_drawn_as_every_dataset_was_made():
+    """The pose datasets regenerate from their seeds only while the draws keep their order."""
+    from tryon.body.pose_sampling import _draw_angles
+
+    a = _draw_angles(np.random.default_rng(0))
+    assert list(a) == angle_names()
+    assert [round(a[k], 6) for k in ("arm_elevation.L", "arm_azimuth.L", "elbow_flexion.L", "spine_twist")] == [
+        104.620211, -0.323461, 4.507088, 11.482772]
+
+
 def test_a_pose_from_joint_angles_points_the_limbs_as_named(shape):
     """What `tryon view --live`'s sliders set: each arm's elevation from straight down and
     azimuth towards the front, the elbow's and knee's bend."""
@@ -55,6 +65,8 @@ def test_a_pose_from_joint_angles_points_the_limbs_as_named(shape):
     hip, knee, foot = (body.heads[f"{b}.R"] for b in ("upperleg01", "lowerleg01", "foot"))
     assert _angle(knee - hip, np.array([0.0, 0.0, -1.0])) == pytest.approx(45.0, abs=2.0)
     assert _angle(foot - knee, knee - hip) == pytest.approx(60.0, abs=2.0)
+    with pytest.raises(ValueError, match="arm_elevaton.L"):   # a misspelt angle is not silently the default
+        pose_from_angles(shape, {"arm_elevaton.L": 120.0})
 
 
 def test_an_arm_through_the_chest_is_caught(shape):

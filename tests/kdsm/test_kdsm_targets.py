@@ -302,10 +302,20 @@ def _live_posing_of(drape, model_path, n, tmp_path, capsys):
     with pytest.raises(TryonError, match="outside the range"):
         poser.frame({"arm_elevation.L": 170.0})
     assert main(["view", str(drape), "--pose", "arm_elevation.L=120"]) == 2   # --pose belongs to --live
-    png = tmp_path / "live.png"
-    assert main(["view", str(drape), "--live", "--model", str(model_path), "--pose", "arm_elevation.L=120",
-                 "--screenshot", str(png), "--force"]) == 0
-    assert png.exists() and "ready: live" in capsys.readouterr().out   # the page drew the pose the server predicted
+    assert main(["view", str(drape), "--live", "--model", str(model_path), "--pose", "tail=3"]) == 2
+    assert "unknown pose angle(s) tail" in capsys.readouterr().err
+    # the page asks for the pose its URL sets, and draws what the server predicted
+    from types import SimpleNamespace
+
+    from tryon.viewer import screenshot_viewer, write_viewer
+
+    asked = []
+    recording = SimpleNamespace(method=poser.method, controls=poser.controls,
+                                frame=lambda values: asked.append(values) or poser.frame(values))
+    status = screenshot_viewer(write_viewer(drape, force=True), tmp_path / "live.png", live=recording,
+                               pose={"arm_elevation.L": 120.0, "knee_flexion.R": 40.0})
+    assert status.startswith("ready: live"), status
+    assert asked and asked[0]["arm_elevation.L"] == 120.0 and asked[0]["knee_flexion.R"] == 40.0
 
 
 def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):

@@ -64,10 +64,20 @@ class _FakeLive:
     def frame(self, values):
         from tryon.errors import TryonError
 
-        if set(values) - {"arm_elevation.L"}:
-            raise TryonError("unknown pose angle")
+        unknown = set(values) - {"arm_elevation.L"}
+        if unknown:
+            raise TryonError(f"unknown pose angle(s) {', '.join(unknown)}")   # echoes the request, as the real one
         a = values.get("arm_elevation.L", 45.0)
+        if a == 13.0:
+            raise RuntimeError("a bug")
         return {"garment": np.full((2, 3), a), "body": np.zeros((1, 3)), "strain": np.array([1.0, 2.0]), "ms": 3.5}
+
+
+def _get_with_headers(port, url, headers):
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+    conn.request("GET", url, headers={"Host": f"127.0.0.1:{port}", **headers})
+    resp = conn.getresponse()
+    return resp.status, dict(resp.getheaders()), resp.read()
 
 
 def test_a_live_source_is_served_as_sliders_and_posed_frames(tmp_path):
@@ -78,12 +88,28 @@ def test_a_live_source_is_served_as_sliders_and_posed_frames(tmp_path):
         port = live.server_address[1]
         status, body = _get(port, "/live.json")
         assert status == 200 and json.loads(body)["controls"][0]["name"] == "arm_elevation.L"
-        status, body = _get(port, "/live?arm_elevation.L=30")
-        assert status == 200
+        status, headers, body = _get_with_headers(port, "/live?arm_elevation.L=30", {})
+        assert status == 200 and headers["X-Frame-Options"] == "DENY"
         assert np.frombuffer(body, "<f4").tolist() == [30.0] * 6 + [0.0] * 3 + [1.0, 2.0, 3.5]
         assert _get(port, "/live?tail=3")[0] == 400
         assert _get(port, "/live?arm_elevation.L=high")[0] == 400
+        assert _get(port, "/live?arm_elevation.L=13")[0] == 500      # the source's own failure
         assert _get(port, "/live?arm_elevation.L=30", host=f"attacker.example:{port}")[0] == 403
+        # another site's page may not drive it
+        assert _get_with_headers(port, "/live?arm_elevation.L=30", {"Sec-Fetch-Site": "cross-site"})[0] == 403
     finally:
         plain.shutdown()
         live.shutdown()
+
+
+def test_a_live_request_cannot_write_into_the_answers_headers(tmp_path):
+    server = start_server(_viewer_folder(tmp_path / "viewer"), live=_FakeLive())
+    port = server.server_address[1]
+    try:
+        status, headers, body = _get_with_headers(
+            port, "/live?x%0d%0aContent-Type:%20text/html%0d%0a%0d%0a<script>alert(1)</script>=1", {})
+        assert status == 400
+        assert "<script>" not in body.decode() and all("\n" not in v and "\r" not in v for v in headers.values())
+        assert _get(port, "/live?%E2%82%AC=1")[0] == 400              # not Latin-1: still an answer
+    finally:
+        server.shutdown()

@@ -101,18 +101,26 @@ def angle_names() -> list[str]:
 
 
 def _draw_pose(shape: BodyShape, rng: np.random.Generator) -> np.ndarray:
+    return pose_from_angles(shape, _draw_angles(rng))
+
+
+def _draw_angles(rng: np.random.Generator) -> dict[str, float]:
     angles = {}
     for side, _ in SIDES:   # this order of draws is what every dataset's seed has made: keep it
         for k in ARM_KEYS + LEG_KEYS:
             angles[f"{k}.{side}"] = rng.uniform(*LIMITS[k])
     angles.update({k: rng.uniform(*LIMITS[k]) for k in SPINE_KEYS})
-    return pose_from_angles(shape, angles)
+    return angles
 
 
 def pose_from_angles(shape: BodyShape, angles: dict[str, float]) -> np.ndarray:
     """The whole-body pose [J,3,3] of joint angles in degrees (`angle_names`, as `LIMITS`
     measures them; a missing one takes its range's value nearest 0, i.e. the arms as
     low as the limits allow and the rest straight)."""
+    unknown = sorted(set(angles) - set(angle_names()))
+    if unknown:
+        raise ValueError(f"unknown joint angle(s) {', '.join(unknown)}; the angles are {', '.join(angle_names())}")
+
     def a(name: str) -> float:
         lo, hi = LIMITS[name.split(".")[0]]
         return float(angles.get(name, min(max(0.0, lo), hi)))

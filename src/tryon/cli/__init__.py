@@ -221,13 +221,20 @@ def _cmd_view(args: argparse.Namespace) -> int:
     pose = _pose_angles(args.pose)
     live = None
     if args.live:
-        from tryon.kdsm.live import LivePoser
-        from tryon.kdsm.model import shipped_model_path
+        from pathlib import Path
 
-        if args.animation:
-            raise TryonError("--live poses the drape itself; leave out --animation")
+        from tryon.io.atomic import check_output_dir
+        from tryon.kdsm.live import LivePoser, live_angles
+        from tryon.kdsm.model import shipped_model_path
+        from tryon.viewer.screenshot import find_browser
+
+        if args.animation or args.no_serve:
+            raise TryonError("--live poses the drape itself on a served page; leave out --animation and --no-serve")
+        live_angles(pose)   # everything that can be refused is, before the model is set on the drape
+        check_output_dir(Path(args.drape_dir) / "viewer", force=args.force)
+        if args.screenshot:
+            find_browser()
         live = LivePoser(args.drape_dir, args.model or shipped_model_path())
-        live.angles(pose)   # refuse unknown or out-of-range --pose angles before any page is written
     elif args.model or pose:
         raise TryonError("--model and --pose are for --live")
     out = write_viewer(args.drape_dir, animation=args.animation, force=args.force)

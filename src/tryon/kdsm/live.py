@@ -4,8 +4,9 @@ by a trained network as they move (`tryon view DRAPE --live`).
 The sliders are the joint angles the pose datasets draw from (`pose_sampling.LIMITS`:
 each arm's elevation, azimuth and elbow, each leg's hip and knee, the spine's bend, side
 bend and twist), over the ranges the network was trained on. A pose is one forward pass
-and one reconstruction (about 10-20 ms here), the body skinned to it, vertices the
-network put inside the body pushed out as `tryon animate --method kdsm` does.
+and one reconstruction (docs/KDSM.md gives the milliseconds measured), the body skinned
+to it, vertices the network put inside the body pushed out as `tryon animate --method
+kdsm` does.
 """
 
 from __future__ import annotations
@@ -19,6 +20,33 @@ import numpy as np
 from tryon.errors import TryonError
 
 START = {"arm_elevation.L": 45.0, "arm_elevation.R": 45.0}   # near the drape's A-pose; the rest straight
+
+
+def live_controls() -> list[dict]:
+    """The sliders: name, label, range (degrees) and starting value."""
+    from tryon.body.pose_sampling import LIMITS, angle_names
+
+    out = []
+    for name in angle_names():
+        key, _, side = name.partition(".")
+        lo, hi = LIMITS[key]
+        label = key.replace("_", " ") + {"L": " (left)", "R": " (right)", "": ""}[side]
+        out.append({"name": name, "label": label, "min": lo, "max": hi, "value": START.get(name, min(max(0.0, lo), hi))})
+    return out
+
+
+def live_angles(values: dict[str, float]) -> dict[str, float]:
+    """Every slider's angle: `values` (checked: known names, finite, within the trained
+    range) and the others at their start."""
+    known = {c["name"]: c for c in live_controls()}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise TryonError(f"unknown pose angle(s) {', '.join(unknown)}; the angles are {', '.join(known)}")
+    for name, v in values.items():
+        lo, hi = known[name]["min"], known[name]["max"]
+        if not (np.isfinite(v) and lo <= v <= hi):
+            raise TryonError(f"{name} = {v} is outside the range the model was trained on ({lo:g} to {hi:g} degrees)")
+    return {**{c["name"]: c["value"] for c in known.values()}, **values}
 
 
 class LivePoser:
@@ -42,29 +70,10 @@ class LivePoser:
         self._lock = threading.Lock()   # the server answers requests in threads; the network runs one at a time
 
     def controls(self) -> list[dict]:
-        """The sliders: name, label, range (degrees) and starting value."""
-        from tryon.body.pose_sampling import LIMITS, angle_names
-
-        out = []
-        for name in angle_names():
-            key, _, side = name.partition(".")
-            lo, hi = LIMITS[key]
-            label = key.replace("_", " ") + {"L": " (left)", "R": " (right)", "": ""}[side]
-            out.append({"name": name, "label": label, "min": lo, "max": hi,
-                        "value": START.get(name, min(max(0.0, lo), hi))})
-        return out
+        return live_controls()
 
     def angles(self, values: dict[str, float]) -> dict[str, float]:
-        """`values` checked against the sliders: known names, finite, within range."""
-        known = {c["name"]: c for c in self.controls()}
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise TryonError(f"unknown pose angle(s) {', '.join(unknown)}; the angles are {', '.join(known)}")
-        for name, v in values.items():
-            lo, hi = known[name]["min"], known[name]["max"]
-            if not (np.isfinite(v) and lo <= v <= hi):
-                raise TryonError(f"{name} = {v} is outside the range the model was trained on ({lo:g} to {hi:g} degrees)")
-        return {**{c["name"]: c["value"] for c in known.values()}, **values}
+        return live_angles(values)
 
     def frame(self, values: dict[str, float]) -> dict[str, np.ndarray | float]:
         """The garment [n,3] and body [m,3] in the pose of `values` (degrees by slider
@@ -88,4 +97,4 @@ class LivePoser:
         return {"garment": x, "body": body, "strain": strain, "ms": ms}
 
 
-__all__ = ["LivePoser", "START"]
+__all__ = ["LivePoser", "START", "live_angles", "live_controls"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import http.server
 import json
 import shutil
+import sys
 import threading
 from importlib import resources
 from pathlib import Path
@@ -157,12 +158,20 @@ def _live_answer(live: LiveSource, name: str, query: str) -> bytes:
         return dumps_json({"controls": live.controls(), "method": live.method}).encode()
     try:
         values = {k: float(v) for k, v in parse_qsl(query, strict_parsing=bool(query))}
+    except ValueError as exc:
+        raise LiveRequestError(f"the query is not NAME=DEGREES pairs ({exc})") from exc
+    try:
         f = live.frame(values)
-    except (ValueError, TryonError) as exc:
+    except TryonError as exc:
         raise LiveRequestError(str(exc)) from exc
     parts = [np.asarray(f["garment"]).ravel(), np.asarray(f["body"]).ravel(), np.asarray(f["strain"]).ravel(),
              np.asarray([f["ms"]])]
     return np.concatenate(parts).astype("<f4").tobytes()
+
+
+def _printable(text: str, limit: int = 300) -> str:
+    """`text` as printable ASCII (it may echo a request's query: no line breaks into headers)."""
+    return "".join(c if " " <= c <= "~" else "?" for c in text)[:limit]
 
 
 class _ViewerHandler(http.server.BaseHTTPRequestHandler):
@@ -189,15 +198,23 @@ class _ViewerHandler(http.server.BaseHTTPRequestHandler):
         name = path.lstrip("/") or "index.html"
         body = self.files.get(name)
         if body is None and self.live is not None and name in ("live.json", "live"):
+            if self.headers.get("Sec-Fetch-Site", "same-origin") not in ("same-origin", "none"):
+                self.send_error(403, "live poses are for this viewer's own page")
+                return
             try:
                 body = _live_answer(self.live, name, query)
-            except LiveRequestError as exc:
-                self.send_error(400, str(exc)[:300])
+            except LiveRequestError as exc:   # the explanation goes in the (escaped) body, never in a header
+                self.send_error(400, "bad live request", _printable(str(exc)))
+                return
+            except Exception as exc:  # noqa: BLE001 - the page gets an answer; the terminal gets the cause
+                print(f"tryon view: a live pose failed: {exc!r}", file=sys.stderr, flush=True)
+                self.send_error(500, "the live pose failed (see the terminal)")
                 return
         if body is None:
             self.send_error(404)
             return
         self.send_response(200)
+        self.send_header("X-Frame-Options", "DENY")
         self.send_header("Content-Type", CONTENT_TYPES.get(Path(name).suffix, "application/octet-stream"))
         self.send_header("Cache-Control", "no-store")
         self.send_header("Content-Length", str(len(body)))

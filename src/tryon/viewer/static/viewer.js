@@ -189,28 +189,41 @@ async function startLive(live, s) {
   // a network's millimetres of noise read as several % of strain on centimetre edges: show the fabric unless asked
   if (s.modeEl.value === 'pressure' || !params.get('mode')) s.modeEl.value = 'plain';
   const box = document.getElementById('live');
-  box.innerHTML = `<div class="live-title">pose (${live.method}, live)</div>`;
+  const title = document.createElement('div');
+  title.className = 'live-title';
+  title.textContent = `pose (${live.method}, live)`;
+  box.replaceChildren(title);
   const inputs = live.controls.map((c) => {
     const row = document.createElement('label');
     row.className = 'live-row';
-    const start = params.has(c.name) ? Number(params.get(c.name)) : c.value;
-    row.innerHTML = `<span>${c.label}</span><input type="range" min="${c.min}" max="${c.max}" step="1" value="${start}">`
-      + `<span class="deg">${start.toFixed(0)}°</span>`;
+    const name = document.createElement('span');
+    name.textContent = c.label;
+    const input = document.createElement('input');
+    Object.assign(input, { type: 'range', min: String(c.min), max: String(c.max), step: 'any' });
+    input.value = String(params.has(c.name) ? Number(params.get(c.name)) : c.value);  // the range clamps it
+    const deg = document.createElement('span');
+    deg.className = 'deg';
+    const label = () => { deg.textContent = `${Number(input.value).toFixed(0)}°`; };
+    label();
+    row.append(name, input, deg);
     box.appendChild(row);
-    const input = row.querySelector('input');
-    input.addEventListener('input', () => { row.querySelector('.deg').textContent = `${Number(input.value).toFixed(0)}°`; ask(); });
+    input.addEventListener('input', () => { label(); ask(); });
     return [c.name, input];
   });
   let busy = false, again = false;
-  async function ask() {
-    if (busy) { again = true; return; }
+  async function ask() {  // true when the scene shows the sliders' pose
+    if (busy) { again = true; return false; }
     busy = true;
+    let shown = false;
     try {
       do {
         again = false;
         const query = inputs.map(([name, input]) => `${encodeURIComponent(name)}=${input.value}`).join('&');
         const response = await fetch(`live?${query}`);
-        if (!response.ok) throw new Error(`live pose: ${response.status} ${response.statusText}`);
+        if (!response.ok) {
+          const why = (await response.text()).replace(/<[^>]*>/g, ' ').replace(/\s+/g, ' ').trim();
+          throw new Error(`live pose: ${response.status}: ${why.slice(0, 300)}`);
+        }
         const a = new Float32Array(await response.arrayBuffer());
         if (a.length !== s.nG + s.nB + s.nV + 1) throw new Error('live pose: the server sent another mesh than this page shows');
         for (const [mesh, from, n] of [[s.garment, 0, s.nG], [s.body, s.nG, s.nB]]) {
@@ -223,15 +236,18 @@ async function startLive(live, s) {
         s.colour(0);
         s.render();
         statusEl.textContent = `ready: live, ${a[a.length - 1].toFixed(1)} ms per pose (${s.nV} garment vertices)`;
+        shown = true;
       } while (again);
     } catch (err) {
       statusEl.textContent = `error: ${err.message}`;
+      shown = false;
     } finally {
       busy = false;
     }
+    if (again) setTimeout(ask, 200);  // a slider moved while a request failed: try its pose once more
+    return shown;
   }
-  await ask();
-  document.body.dataset.ready = '1';
+  if (await ask()) document.body.dataset.ready = '1';
 }
 
 main().catch((err) => { statusEl.textContent = `error: ${err.message}`; console.error(err); });
