@@ -248,7 +248,7 @@ def test_animate_with_a_kdsm_model_on_another_body_and_triangulation(poses, tmp_
 
     scene = json.loads((write_viewer(drape, animation="arm-raise") / "scene.json").read_text())
     assert scene["frames"] == 16 and scene["garment"]["vertices"] == n
-    assert any("kdsm" in line and "ms per frame" in line for line in scene["info"])
+    assert any("kdsm" in line and "ms per frame" in line for line in scene["info"]) and scene["predicted"]
     _live_posing_of(drape, tmp_path / "m" / "model.npz", n, tmp_path, capsys)
     # the bench's held-out motion: the model against the simulated animation of the same drape, with a picture
     from PIL import Image

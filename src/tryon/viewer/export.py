@@ -116,6 +116,8 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
         "strain_max": float(max(10.0, np.percentile(strain, 99))),
         "pressure_max": float(max(0.5, np.percentile(seq["pressure"], 99))) if seq["pressure"] is not None else 1.0,
         "colors": {"skin": list(SKIN), "cloth": list(appearance(str(st["request"]["fabric"])).color)},
+        # a network's prediction: its millimetres of noise read as several % of strain, so the fabric is shown first
+        "predicted": "ms_per_frame" in seq["report"],
     }
     out = Path(out) if out is not None else drape_dir / ("viewer" if animation is None else f"viewer-{animation}")
     with atomic_output_dir(out, force=force) as tmp:

@@ -95,6 +95,7 @@ async function main() {
   const modeEl = document.getElementById('mode');
   if (!pressure) modeEl.querySelector('option[value="pressure"]').disabled = true;
   if (params.get('mode')) modeEl.value = params.get('mode');
+  else if (meta.predicted) modeEl.value = 'plain';   // a network's noise would read as strain
   slider.max = String(meta.frames - 1);
   slider.value = params.get('frame') === 'last' ? String(meta.frames - 1) : (params.get('frame') || '0');
 
