@@ -10,7 +10,7 @@ import pytest
 
 from tryon.dataset.poses import PoseDatasetSpec, load_pose_dataset, make_pose_dataset
 from tryon.errors import TryonError
-from tryon.kdsm.animate import _check_garment
+from tryon.kdsm.animate import check_garment
 from tryon.kdsm.embed import find_parents
 from tryon.kdsm.evaluate import generation_table, sequence_targets
 from tryon.kdsm.rig import KdsmRig
@@ -297,13 +297,13 @@ def _live_posing_of(drape, model_path, n, tmp_path, capsys):
     assert raised["garment"].shape == (n, 3) and np.median(moved) == 0.0   # only what lay in the body was pushed out
     assert np.linalg.norm(raised["garment"] - start["garment"], axis=1).max() > 0.03 and raised["ms"] > 0
     assert raised["strain"].shape == (n,) and np.isfinite(raised["strain"]).all()
-    with pytest.raises(TryonError, match="unknown pose angle"):
+    with pytest.raises(TryonError, match="unknown joint angle"):
         poser.frame({"tail": 3.0})
     with pytest.raises(TryonError, match="outside the range"):
         poser.frame({"arm_elevation.L": 170.0})
     assert main(["view", str(drape), "--pose", "arm_elevation.L=120"]) == 2   # --pose belongs to --live
     assert main(["view", str(drape), "--live", "--model", str(model_path), "--pose", "tail=3"]) == 2
-    assert "unknown pose angle(s) tail" in capsys.readouterr().err
+    assert "unknown joint angle(s) tail" in capsys.readouterr().err
     # the page asks for the pose its URL sets, and draws what the server predicted
     from types import SimpleNamespace
 
@@ -343,7 +343,7 @@ def test_a_model_reads_its_images_on_another_triangulation(poses, tmp_path):
     with pytest.raises(TryonError, match="pattern"):
         model.atlas.on_garment(other.faces, other.corner_uv, other.panel_of_vertex[other.faces[:, 0]])
     with pytest.raises(TryonError, match="tshirt M"):
-        _check_garment(KdsmModel.load(tmp_path / "j" / "model.npz"), {"request": {"garment": "tshirt", "size": "XL", "fabric": "gray-interlock"}}, "m.npz")
+        check_garment(KdsmModel.load(tmp_path / "j" / "model.npz"), {"request": {"garment": "tshirt", "size": "XL", "fabric": "gray-interlock"}}, "m.npz")
 
 
 def _flip_interior_edges(faces, corner_uv, face_panel, seam, count):

@@ -100,6 +100,13 @@ def angle_names() -> list[str]:
     return [f"{k}.{side}" for side, _ in SIDES for k in ARM_KEYS + LEG_KEYS] + list(SPINE_KEYS)
 
 
+def default_angle(name: str) -> float:
+    """An angle of `angle_names` left unset: its range's value nearest 0 (the arms as low
+    as the limits allow, the rest straight)."""
+    lo, hi = LIMITS[name.split(".")[0]]
+    return min(max(0.0, lo), hi)
+
+
 def _draw_pose(shape: BodyShape, rng: np.random.Generator) -> np.ndarray:
     return pose_from_angles(shape, _draw_angles(rng))
 
@@ -122,8 +129,7 @@ def pose_from_angles(shape: BodyShape, angles: dict[str, float]) -> np.ndarray:
         raise ValueError(f"unknown joint angle(s) {', '.join(unknown)}; the angles are {', '.join(angle_names())}")
 
     def a(name: str) -> float:
-        lo, hi = LIMITS[name.split(".")[0]]
-        return float(angles.get(name, min(max(0.0, lo), hi)))
+        return float(angles.get(name, default_angle(name)))
 
     R = identity_pose(shape)
     for side, sign in SIDES:

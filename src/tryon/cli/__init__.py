@@ -221,8 +221,6 @@ def _cmd_view(args: argparse.Namespace) -> int:
     pose = _pose_angles(args.pose)
     live = None
     if args.live:
-        from pathlib import Path
-
         from tryon.io.atomic import check_output_dir
         from tryon.kdsm.live import LivePoser, live_angles
         from tryon.kdsm.model import shipped_model_path
@@ -518,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--no-serve", action="store_true", help="only write DRAPE_DIR/viewer")
     v.add_argument("--screenshot", help="save a picture of the page (headless Chromium) to this PNG instead of serving")
     v.add_argument("--mode", choices=["strain", "pressure", "plain"],
-                   help="colouring for --screenshot (default: strain; with --live, the fabric)")
+                   help="colouring for --screenshot (default: strain; the fabric for --live or a network's animation)")
     v.add_argument("--force", action="store_true", help="replace DRAPE_DIR/viewer even if tryon did not write it")
     v.add_argument("--live", action="store_true",
                    help="pose sliders: the garment in each pose predicted by a KDSM model as the sliders move")

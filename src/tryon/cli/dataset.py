@@ -132,10 +132,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--shard-size", type=int, default=16, help="sequences per shard file")
     _generator_args(q)
     q.set_defaults(func=_cmd_dataset_poses)
-    k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control")
+    k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control; "
+                                       "packing again into it adds only what changed")
     k.add_argument("dataset", help="dataset folder")
     k.add_argument("--out", required=True, help="folder of the copy")
-    k.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    k.add_argument("--force", action="store_true",
+                   help="replace an --out that is not an earlier pack of this dataset (another dataset or pack, a pack "
+                        "made before packs were marked, one holding other files, or a folder tryon did not write)")
     k.add_argument("--splits", nargs="+", metavar="SPLIT",
                    help="keep only these splits' samples (e.g. test extrapolation: what a model ships to be judged on)")
     k.set_defaults(func=_cmd_dataset_pack)

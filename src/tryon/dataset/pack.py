@@ -58,10 +58,9 @@ def pack_dataset(src: str | Path, dst: str | Path, force: bool = False, splits: 
         for name in SHARED[manifest.kind]:
             copy = shutil.copytree if (src / name).is_dir() else shutil.copy2
             copy(src / name, out / name)
-        packed = Manifest.read(src)
-        packed.notes = dict(packed.notes, packed={"splits": splits})
+        manifest.notes = dict(manifest.notes, packed={"splits": splits})
         with atomic_write(out / MANIFEST, "w") as fh:
-            fh.write(packed.to_json())
+            fh.write(manifest.to_json())
     return dst
 
 
@@ -98,7 +97,7 @@ def _not_replaceable(dst: Path, manifest: Manifest) -> str | None:
         return "holds a dataset, not a pack of one (a pack made before packs were marked needs --force once)"
     differs = there.same_data(manifest) + (["created"] if there.created != manifest.created else [])
     if differs:
-        return f"is a pack of other data (its {', '.join(differs)} differ)"
+        return f"is a pack of other data (its {', '.join(differs)}: not this dataset's)"
     extra = sorted(p.name for p in dst.iterdir() if p.name not in PACK_ENTRIES + SHARED[manifest.kind])
     if extra:
         return f"holds {', '.join(extra)} besides the pack"
@@ -173,4 +172,4 @@ def _packed(arrays: dict[str, np.ndarray], splits: list[str] | None) -> dict | N
     return arrays
 
 
-__all__ = ["pack_dataset", "SHARED"]
+__all__ = ["pack_dataset"]

@@ -48,7 +48,7 @@ def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "w
     check_output_dir(out, force=force)
     state = load_drape(drape_dir)
     model = KdsmModel.load(model_path)
-    _check_garment(model, state, model_path)
+    check_garment(model, state, model_path)
     params = ShapeParams.from_dict(state["body_params"])
     shape = body_model().rest_shape(params).detached()
     t1 = time.perf_counter()
@@ -86,7 +86,7 @@ def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "w
     return report
 
 
-def _check_garment(model: KdsmModel, state: dict, model_path) -> None:
+def check_garment(model: KdsmModel, state: dict, model_path) -> None:
     """The drape must be of the model's garment and size (any triangulation, any body)."""
     spec = model.card.get("manifest", {}).get("spec", {})
     request = state["request"]
@@ -97,7 +97,7 @@ def _check_garment(model: KdsmModel, state: dict, model_path) -> None:
                          f"drape the {want[0]} in size {want[1]}, or train a model on a pose dataset of this garment")
     if spec.get("fabric") and request.get("fabric") != spec["fabric"]:
         warnings.warn(f"the model was trained on {spec['fabric']}; the drape is of {request.get('fabric')}: the "
-                      "animation moves the cloth as the model's fabric", stacklevel=3)
+                      "prediction moves the cloth as the model's fabric", stacklevel=3)
 
 
 def _write(out: Path, positions: np.ndarray, bodies: np.ndarray, times: np.ndarray, rig: KdsmRig, state: dict,

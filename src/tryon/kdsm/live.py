@@ -2,8 +2,8 @@
 by a trained network as they move (`tryon view DRAPE --live`).
 
 The sliders are the joint angles the pose datasets draw from (`pose_sampling.LIMITS`:
-each arm's elevation, azimuth and elbow, each leg's hip and knee, the spine's bend, side
-bend and twist), over the ranges the network was trained on. A pose is one forward pass
+each arm's elevation, azimuth and elbow, each leg's hip flexion, abduction and knee, the
+spine's bend, side bend and twist), over the ranges the network was trained on. A pose is one forward pass
 and one reconstruction (docs/KDSM.md gives the milliseconds measured), the body skinned
 to it, vertices the network put inside the body pushed out as `tryon animate --method
 kdsm` does.
@@ -24,14 +24,14 @@ START = {"arm_elevation.L": 45.0, "arm_elevation.R": 45.0}   # near the drape's 
 
 def live_controls() -> list[dict]:
     """The sliders: name, label, range (degrees) and starting value."""
-    from tryon.body.pose_sampling import LIMITS, angle_names
+    from tryon.body.pose_sampling import LIMITS, angle_names, default_angle
 
     out = []
     for name in angle_names():
         key, _, side = name.partition(".")
         lo, hi = LIMITS[key]
         label = key.replace("_", " ") + {"L": " (left)", "R": " (right)", "": ""}[side]
-        out.append({"name": name, "label": label, "min": lo, "max": hi, "value": START.get(name, min(max(0.0, lo), hi))})
+        out.append({"name": name, "label": label, "min": lo, "max": hi, "value": START.get(name, default_angle(name))})
     return out
 
 
@@ -41,7 +41,7 @@ def live_angles(values: dict[str, float]) -> dict[str, float]:
     known = {c["name"]: c for c in live_controls()}
     unknown = sorted(set(values) - set(known))
     if unknown:
-        raise TryonError(f"unknown pose angle(s) {', '.join(unknown)}; the angles are {', '.join(known)}")
+        raise TryonError(f"unknown joint angle(s) {', '.join(unknown)}; the angles are {', '.join(known)}")
     for name, v in values.items():
         lo, hi = known[name]["min"], known[name]["max"]
         if not (np.isfinite(v) and lo <= v <= hi):
@@ -55,18 +55,18 @@ class LivePoser:
     def __init__(self, drape_dir: str | Path, model_path: str | Path):
         from tryon.body.anny_model import ShapeParams, body_model
         from tryon.drape.animate import load_drape
-        from tryon.kdsm.animate import _check_garment
+        from tryon.kdsm.animate import check_garment
         from tryon.kdsm.model import KdsmModel
 
         state = load_drape(drape_dir)
         model = KdsmModel.load(model_path)
-        _check_garment(model, state, model_path)
+        check_garment(model, state, model_path)
         self.shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"])).detached()
         self.model, self.how = model.on_drape(state["x"], state["faces"], state["corner_uv"], state["face_panel"],
                                               self.shape)
         self.net = self.model.build_net() if self.model.method != "skinning" else None
         self.faces, self.corner_uv = np.asarray(state["faces"]), np.asarray(state["corner_uv"])
-        self.method = self.model.method
+        self.method = self.model.method + (" on another body" if self.how == "another body" else "")
         self._lock = threading.Lock()   # the server answers requests in threads; the network runs one at a time
 
     def controls(self) -> list[dict]:

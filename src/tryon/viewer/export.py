@@ -172,7 +172,8 @@ def _live_answer(live: LiveSource, name: str, query: str) -> bytes:
 
 
 def _printable(text: str, limit: int = 300) -> str:
-    """`text` as printable ASCII (it may echo a request's query: no line breaks into headers)."""
+    """`text` as printable ASCII: it may echo a request's query (it goes only into the escaped
+    body of an error page, and stays one line there)."""
     return "".join(c if " " <= c <= "~" else "?" for c in text)[:limit]
 
 

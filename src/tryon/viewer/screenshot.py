@@ -41,7 +41,8 @@ def screenshot_viewer(viewer_dir: str | Path, png: str | Path, mode: str | None 
                       size: tuple[int, int] = (900, 700), timeout: float = 120.0, live: LiveSource | None = None,
                       pose: dict[str, float] | None = None) -> str:
     """Load `viewer_dir` (from `write_viewer`) in headless Chromium with the given colouring
-    (strain, pressure or plain; None: the page's own, strain or, live, the fabric) and frame, save a screenshot to `png` and return the page's
+    (strain, pressure or plain; None: the page's default, strain, or the fabric for a
+    network's animation or live posing) and frame, save a screenshot to `png` and return the page's
     status line ("ready: ..." when the scene was drawn). `live`: serve it with pose
     sliders (`start_server`), set to `pose` (degrees by slider name)."""
     from urllib.parse import urlencode
