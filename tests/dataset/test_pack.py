@@ -58,15 +58,6 @@ def test_a_pack_is_half_precision_and_grows_by_its_new_files_only(tmp_path):
     assert _load(dst)["unit"].tolist() == [0, 1, 2, 3, 4]
 
 
-def test_a_sample_left_both_in_a_shard_and_pending_is_packed_once(tmp_path):
-    src = tmp_path / "poses"
-    _dataset(src, [0, 1, 2])
-    np.savez(src / "pending" / "0000000.npz", **_sample(0), unit=np.asarray(0))   # a run stopped mid-shard
-    assert _load(src)["unit"].tolist() == [0, 1, 2]
-    assert _load(pack_dataset(src, tmp_path / "packed"))["unit"].tolist() == [0, 1, 2]
-    assert not (tmp_path / "packed" / "pending" / "0000000.npz").exists()
-
-
 def test_packing_some_splits_and_then_others_makes_the_copy_again(tmp_path):
     src, dst = tmp_path / "poses", tmp_path / "packed"
     _dataset(src, range(5))

@@ -115,13 +115,10 @@ def _link(a: Path, b: Path, replace: bool = False) -> None:
 
 
 def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
-    """The sample files of `src`: its shards, then the pending samples no shard holds (a run
-    stopped while packing a shard can leave some behind)."""
+    """The sample files of `src`: its shards, then its pending samples."""
     store = ShardStore(src, manifest)
     shards = sorted(store.shards.glob("*.npz")) if store.shards.is_dir() else []
-    in_shards = {u for f in shards for u in _units(f)}
-    pending = sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else []
-    files = shards + [f for f in pending if not set(_units(f)) <= in_shards]
+    files = shards + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
     if not files:
         raise DatasetError(f"{src} holds no samples to pack")
     return files

@@ -190,11 +190,8 @@ class ShardStore:
         for k in range(self.num_shards()):
             if self.shard_path(k).exists():
                 parts.append(read_npz(self.shard_path(k), "dataset shard"))
-        in_shards = {int(u) for part in parts for u in part["unit"]}
         if self.pending.is_dir():
             for p in sorted(self.pending.glob("*.npz")):
-                if p.stem.isdigit() and int(p.stem) in in_shards:
-                    continue  # left behind by a run stopped while it packed that shard
                 s = read_npz(p, "dataset sample")
                 parts.append({key: value[None] for key, value in s.items()})
         if not parts:
