@@ -47,6 +47,23 @@ def test_samples_stream_into_shards_and_a_stopped_run_resumes(tmp_path):
     assert nothing.made == 0
 
 
+def test_a_sample_left_pending_beside_its_shard_loads_once(tmp_path):
+    """A run stopped between writing a shard and removing its pending files leaves copies
+    of the shard's units; a pending unit its shard's file lacks (a short shard) is kept."""
+    out = tmp_path / "data"
+    store = open_dataset(out, _manifest())
+    run_generator(store, _prepare, _make, progress=False, limit=4)
+    shard = ShardStore(out, Manifest.read(out))
+    data = shard.load()
+    np.savez(shard.sample_path(2), **{k: v[2] for k, v in data.items()})              # stranded copy of unit 2
+    np.savez(shard.sample_path(3), **{**{k: v[3] for k, v in data.items()}, "x": data["x"][3] + 9})
+    np.savez(shard.sample_path(9), **{**{k: v[0] for k, v in data.items()}, "unit": np.asarray(9)})
+    again = shard.load()
+    assert again["unit"].tolist() == [0, 1, 2, 3, 9]
+    assert np.array_equal(again["x"][:4], data["x"])         # the shard's copy wins
+    assert shard.remove_stranded_samples() == 2 and sorted(p.name for p in (out / "pending").iterdir()) == ["0000009.npz"]
+
+
 def test_a_dataset_grows_but_never_mixes_settings(tmp_path):
     out = tmp_path / "data"
     run_generator(open_dataset(out, _manifest(count=6)), _prepare, _make, progress=False)

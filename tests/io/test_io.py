@@ -350,3 +350,15 @@ def test_glb_rejects_bad_input(tmp_path: Path) -> None:
     with pytest.raises(MeshError, match="colour"):
         write_glb(tmp_path / "e.glb", [(verts, faces, np.zeros((2, 3)), "x")])
     assert os.listdir(tmp_path) == []
+
+
+def test_read_npz_some_keys(tmp_path: Path) -> None:
+    from tryon.io.npz import read_npz
+
+    path = tmp_path / "a.npz"
+    np.savez_compressed(path, unit=np.arange(3), x=np.ones((3, 4)))
+    got = read_npz(path, "dataset shard", keys=("unit",))
+    assert list(got) == ["unit"] and got["unit"].tolist() == [0, 1, 2]
+    assert sorted(read_npz(path, "dataset shard")) == ["unit", "x"]
+    with pytest.raises(InputFileError, match="dataset shard .*a.npz has no 'split'"):
+        read_npz(path, "dataset shard", keys=("unit", "split"))

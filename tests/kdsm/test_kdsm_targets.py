@@ -290,9 +290,9 @@ def _live_posing_of(drape, model_path, n, tmp_path, capsys):
     poser = LivePoser(drape, model_path)
     start, raised = poser.frame({}), poser.frame({"arm_elevation.L": 120.0, "knee_flexion.R": 40.0})
     pose = matrix_to_axis_angle(pose_from_angles(poser.shape, poser.angles({"arm_elevation.L": 120.0, "knee_flexion.R": 40.0})))
-    rig = poser.model.rig
+    rig = poser.predictor.rig
     assert np.allclose(raised["body"], rig.body(rig.transforms(pose)))
-    predicted = poser.model.predict(pose, poser.net)
+    predicted = poser.predictor.model.predict(pose, poser.predictor.net)
     moved = np.linalg.norm(raised["garment"] - predicted, axis=1)
     assert raised["garment"].shape == (n, 3) and np.median(moved) == 0.0   # only what lay in the body was pushed out
     assert np.linalg.norm(raised["garment"] - start["garment"], axis=1).max() > 0.03 and raised["ms"] > 0

@@ -56,6 +56,7 @@ def open_dataset(folder: str | Path, manifest: Manifest, force: bool = False) ->
         claim_work_dir(folder, resume=False, force=force)
     store = ShardStore(folder, manifest)
     store.write_manifest()
+    store.remove_stranded_samples()
     store.reopen_short_shards()
     return store
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ from tryon.dataset.drapes import KIND as DRAPE
 from tryon.dataset.poses import KIND as POSES
 from tryon.dataset.store import MANIFEST, DatasetError, Manifest, ShardStore
 from tryon.io.atomic import OWNER_MARKER, atomic_output_dir, atomic_write, is_being_written
+from tryon.errors import InputFileError
 from tryon.io.npz import read_npz
 
 SHARED = {DRAPE: ("references",), POSES: ("rest.npz", "rest.json")}  # what every sample of a kind shares
@@ -127,10 +127,9 @@ def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
 def _read_keys(f: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
     """Some arrays of a sample file, without unpacking the others (its vertices)."""
     try:
-        with np.load(f, allow_pickle=False) as z:
-            return {k: np.atleast_1d(z[k]) for k in keys}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-        raise DatasetError(f"dataset file {f} cannot be read ({exc}); make it again") from exc
+        return {k: np.atleast_1d(v) for k, v in read_npz(f, "dataset file", keys=keys).items()}
+    except InputFileError as exc:
+        raise DatasetError(f"{exc}; make it again") from exc
 
 
 def _units(f: Path, splits: list[str] | None = None) -> list[int]:

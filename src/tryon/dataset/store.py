@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tryon.errors import TryonError
+from tryon.errors import InputFileError, TryonError
 from tryon.io.atomic import atomic_write
 from tryon.io.json_safe import dumps_json
 from tryon.io.npz import read_npz
@@ -140,10 +140,28 @@ class ShardStore:
     def _shard_complete(self, k: int) -> bool:
         """A shard written while the count was smaller can miss units the count now has."""
         try:
-            with np.load(self.shard_path(k)) as z:
-                return len(z["unit"]) == len(self.shard_units(k))
-        except (OSError, KeyError, ValueError):
+            return len(read_npz(self.shard_path(k), "dataset shard", keys=("unit",))["unit"]) == len(self.shard_units(k))
+        except InputFileError:
             return False
+
+    def remove_stranded_samples(self) -> int:
+        """Pending files of units their shard's file already holds (a run stopped between
+        writing a shard and removing its pending files): removed; how many."""
+        if not self.pending.is_dir():
+            return 0
+        removed = 0
+        for k in range(self.num_shards()):
+            stranded = [self.sample_path(u) for u in self.shard_units(k) if self.sample_path(u).exists()]
+            if stranded and self.shard_path(k).exists():
+                try:
+                    held = set(read_npz(self.shard_path(k), "dataset shard", keys=("unit",))["unit"].tolist())
+                except InputFileError:
+                    continue
+                for p in stranded:
+                    if int(p.stem) in held:
+                        p.unlink()
+                        removed += 1
+        return removed
 
     def reopen_short_shards(self) -> None:
         """After the count grew, the last shard of the old count may be short: its samples
@@ -198,5 +216,9 @@ class ShardStore:
             raise DatasetError(f"{self.folder} holds no samples yet; run the generator (it resumes)")
         keys = keys or sorted(set.intersection(*(set(p) for p in parts)))  # samples of older versions may lack new keys
         out = {key: np.concatenate([p[key] for p in parts]) for key in set(keys) | {"unit"}}
-        order = np.argsort(out["unit"], kind="stable")
+        order = np.argsort(out["unit"], kind="stable")   # shards first: a unit in both keeps its shard's copy
+        units = out["unit"][order]
+        first = np.ones(len(units), bool)
+        first[1:] = units[1:] != units[:-1]    # a pending copy left beside the shard written from it
+        order = order[first]
         return {key: value[order] for key, value in out.items()}

@@ -20,8 +20,10 @@ from tryon.limits import LIMITS, check_file_size, check_limit
 Shape = tuple[int | None, ...]
 
 
-def read_npz(path: str | Path, what: str, allow_large: bool | None = None) -> dict[str, np.ndarray]:
-    """All arrays of the npz at `path` (`what` names the file kind in messages)."""
+def read_npz(path: str | Path, what: str, allow_large: bool | None = None,
+             keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    """All arrays of the npz at `path` (`what` names the file kind in messages), or only
+    those named in `keys` (the others are not decompressed; a missing one is an error)."""
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{what} {path} does not exist; check the path")
@@ -31,7 +33,10 @@ def read_npz(path: str | Path, what: str, allow_large: bool | None = None) -> di
             for info in archive.infolist():
                 _check_member(archive, info, path, what, allow_large)
         with np.load(path, allow_pickle=False) as data:
-            return {key: data[key] for key in data.files}
+            missing = [k for k in keys or () if k not in data.files]
+            if missing:
+                raise InputFileError(f"{what} {path} has no {', '.join(map(repr, missing))}")
+            return {key: data[key] for key in (data.files if keys is None else keys)}
     except InputFileError:
         raise
     # zipfile signals an unsupported compression method with NotImplementedError

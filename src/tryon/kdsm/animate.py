@@ -33,48 +33,78 @@ PUSH_GAP = 0.002     # m: predicted vertices nearer the skin than this (or insid
 PUSH_DEPTH = 0.05    # m: deeper than this a vertex is behind an open part of the body, not in it
 
 
+class DrapePredictor:
+    """A trained model set on a drape (its garment, any triangulation, any body), ready to
+    give the garment in any pose: what `tryon animate --method kdsm` and live posing share."""
+
+    def __init__(self, drape_dir: str | Path, model_path: str | Path):
+        from tryon.body.anny_model import ShapeParams, body_model
+        from tryon.drape.animate import load_drape
+
+        self.state = load_drape(drape_dir)
+        model = KdsmModel.load(model_path)
+        check_garment(model, self.state, model_path)
+        self.shape = body_model().rest_shape(ShapeParams.from_dict(self.state["body_params"])).detached()
+        tic = time.perf_counter()
+        s = self.state
+        self.model, self.how = model.on_drape(s["x"], s["faces"], s["corner_uv"], s["face_panel"], self.shape)
+        self.rig_s = time.perf_counter() - tic   # building a rig around another body is most of it
+        self.net = self.model.build_net() if self.model.method != "skinning" else None
+
+    @property
+    def rig(self) -> KdsmRig:
+        return self.model.rig
+
+    def garment(self, pose: np.ndarray, translation: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+        """The network's garment [n,3] in `pose` (per-bone axis-angle) and the milliseconds it took."""
+        tic = time.perf_counter()
+        x = self.model.predict(pose, self.net, translation=translation)
+        return x, 1000.0 * (time.perf_counter() - tic)
+
+    def body(self, pose: np.ndarray, translation: np.ndarray | None = None) -> np.ndarray:
+        return self.rig.body(self.rig.transforms(pose, translation))
+
+    def push_out(self, x: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices the network put inside the body (or nearer it than PUSH_GAP) moved out
+        along its normal, as the simulator's contact would keep them; and which moved."""
+        x, moved, _ = push_outside(x, body, self.rig.shape.faces, PUSH_GAP, max_depth=PUSH_DEPTH)
+        return x, moved
+
+
 def kdsm_animate(drape_dir: str | Path, model_path: str | Path, motion: str = "walk", out: str | Path | None = None,
                  duration: float | None = None, progress: bool = True, force: bool = False, push_out: bool = True) -> dict:
     """`push_out`: vertices the network put inside the body (or nearer it than PUSH_GAP)
     are moved out along its normal, as the simulator's contact would keep them."""
-    from tryon.body.anny_model import ShapeParams, body_model
     from tryon.body.motion import load_motion, motion_poses
     from tryon.body.pose import matrix_to_axis_angle, named_pose
-    from tryon.drape.animate import load_drape
     from tryon.io.atomic import check_output_dir
 
     t0 = time.perf_counter()
     out = Path(out) if out is not None else Path(drape_dir) / f"animation-{Path(str(motion)).stem}"
     check_output_dir(out, force=force)
-    state = load_drape(drape_dir)
-    model = KdsmModel.load(model_path)
-    check_garment(model, state, model_path)
-    params = ShapeParams.from_dict(state["body_params"])
-    shape = body_model().rest_shape(params).detached()
-    t1 = time.perf_counter()
-    model, how = model.on_drape(state["x"], state["faces"], state["corner_uv"], state["face_panel"], shape)
-    rig = model.rig
-    rig_s = time.perf_counter() - t1
+    predictor = DrapePredictor(drape_dir, model_path)
+    shape, rig = predictor.shape, predictor.rig
     rots, trans, times = motion_poses(shape, load_motion(motion, shape), named_pose(shape, "a"), fps=FPS)
     if duration is not None:
         keep = times <= duration + 1e-9
         rots, trans, times = rots[keep], trans[keep], times[keep]
-    net = model.build_net() if model.method != "skinning" else None
     positions, bodies, ms, ms_all, inside = [], [], [], [], []
     for R, tr in tqdm(list(zip(rots, trans)), desc="kdsm frames", unit="frame", disable=not progress, leave=False):
         tic = time.perf_counter()
-        x = model.predict(matrix_to_axis_angle(R), net, translation=tr)
-        ms.append(1000.0 * (time.perf_counter() - tic))
-        body = rig.body(rig.transforms(matrix_to_axis_angle(R), tr))
+        pose = matrix_to_axis_angle(R)
+        x, ms_net = predictor.garment(pose, tr)
+        ms.append(ms_net)
+        body = predictor.body(pose, tr)
         if push_out:
-            x, moved, _ = push_outside(x, body, rig.shape.faces, PUSH_GAP, max_depth=PUSH_DEPTH)
+            x, moved = predictor.push_out(x, body)
             inside.append(100.0 * float(moved.mean()))
         ms_all.append(1000.0 * (time.perf_counter() - tic))
         positions.append(x)
         bodies.append(body)
-    report = _write(out, np.stack(positions), np.stack(bodies), times, rig, state, force)
-    report.update({"method": f"kdsm ({model.method})", "model": str(model_path), "motion": str(motion),
-                   "transferred_to_another_body": how == "another body", "mesh": how, "rig_s": rig_s,
+    report = _write(out, np.stack(positions), np.stack(bodies), times, rig, predictor.state, force)
+    how = predictor.how
+    report.update({"method": f"kdsm ({predictor.model.method})", "model": str(model_path), "motion": str(motion),
+                   "transferred_to_another_body": how == "another body", "mesh": how, "rig_s": predictor.rig_s,
                    "ms_per_frame": float(np.median(ms)), "frames_per_second": 1000.0 / float(np.median(ms)),
                    "ms_per_frame_with_body_and_push_out": float(np.median(ms_all)), "pushed_out": push_out,
                    "pushed_out_vertices_pct_max": max(inside) if inside else None, "wall_s": time.perf_counter() - t0})

@@ -12,7 +12,6 @@ kdsm` does.
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -53,20 +52,14 @@ class LivePoser:
     """A drape and a trained model, ready to give the garment in any pose of the sliders."""
 
     def __init__(self, drape_dir: str | Path, model_path: str | Path):
-        from tryon.body.anny_model import ShapeParams, body_model
-        from tryon.drape.animate import load_drape
-        from tryon.kdsm.animate import check_garment
-        from tryon.kdsm.model import KdsmModel
+        from tryon.kdsm.animate import DrapePredictor
 
-        state = load_drape(drape_dir)
-        model = KdsmModel.load(model_path)
-        check_garment(model, state, model_path)
-        self.shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"])).detached()
-        self.model, self.how = model.on_drape(state["x"], state["faces"], state["corner_uv"], state["face_panel"],
-                                              self.shape)
-        self.net = self.model.build_net() if self.model.method != "skinning" else None
+        self.predictor = DrapePredictor(drape_dir, model_path)
+        self.shape = self.predictor.shape
+        state = self.predictor.state
         self.faces, self.corner_uv = np.asarray(state["faces"]), np.asarray(state["corner_uv"])
-        self.method = self.model.method + (" on another body" if self.how == "another body" else "")
+        model = self.predictor.model
+        self.method = model.method + (" on another body" if self.predictor.how == "another body" else "")
         self._lock = threading.Lock()   # the server answers requests in threads; the network runs one at a time
 
     def controls(self) -> list[dict]:
@@ -81,18 +74,13 @@ class LivePoser:
         milliseconds the prediction took."""
         from tryon.body.pose import matrix_to_axis_angle
         from tryon.body.pose_sampling import pose_from_angles
-        from tryon.kdsm.animate import PUSH_DEPTH, PUSH_GAP
-        from tryon.sim.collision import push_outside
         from tryon.viewer.export import vertex_strain_percent
 
         pose = matrix_to_axis_angle(pose_from_angles(self.shape, self.angles(values)))
         with self._lock:
-            tic = time.perf_counter()
-            x = self.model.predict(pose, self.net)
-            ms = 1000.0 * (time.perf_counter() - tic)
-            rig = self.model.rig
-            body = rig.body(rig.transforms(pose))
-        x, _, _ = push_outside(x, body, rig.shape.faces, PUSH_GAP, max_depth=PUSH_DEPTH)
+            x, ms = self.predictor.garment(pose)
+            body = self.predictor.body(pose)
+        x, _ = self.predictor.push_out(x, body)
         strain = vertex_strain_percent(x[None], self.faces, self.corner_uv)[0]
         return {"garment": x, "body": body, "strain": strain, "ms": ms}
 

@@ -213,6 +213,8 @@ def card_markdown(card: dict) -> str:
              "| split | samples | mean cm | p95 cm | skinning baseline mean cm |", "|---|---:|---:|---:|---:|"]
     for split, m in sorted(card["metrics"].items()):
         lines.append(f"| {split} | {m['samples']} | {m['mean_error_cm']:.2f} | {m['p95_error_cm']:.2f} | {m['skinning_mean_error_cm']:.2f} |")
+    if card.get("metrics_note"):
+        lines += ["", card["metrics_note"]]
     t = card["train_config"]
     lines += ["", "## Training", "",
               f"{card['epochs']} epochs (best {card['best_epoch']}), batch {t['batch']}, learning rate {t['lr']}, seed {t['seed']}; "
