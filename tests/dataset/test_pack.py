@@ -58,6 +58,15 @@ def test_a_pack_is_half_precision_and_grows_by_its_new_files_only(tmp_path):
     assert _load(dst)["unit"].tolist() == [0, 1, 2, 3, 4]
 
 
+def test_a_pending_copy_of_a_unit_its_shard_holds_is_not_packed(tmp_path):
+    src, dst = tmp_path / "poses", tmp_path / "packed"
+    store = _dataset(src, [0, 1, 2])
+    np.savez(store.sample_path(1), **{**_sample(1), "unit": np.asarray(1)})    # left by a run stopped mid-write
+    pack_dataset(src, dst)
+    assert sorted(p.name for p in (dst / "pending").iterdir()) == ["0000002.npz"]
+    assert _load(dst)["unit"].tolist() == [0, 1, 2]
+
+
 def test_packing_some_splits_and_then_others_makes_the_copy_again(tmp_path):
     src, dst = tmp_path / "poses", tmp_path / "packed"
     _dataset(src, range(5))

@@ -49,19 +49,27 @@ def test_samples_stream_into_shards_and_a_stopped_run_resumes(tmp_path):
 
 def test_a_sample_left_pending_beside_its_shard_loads_once(tmp_path):
     """A run stopped between writing a shard and removing its pending files leaves copies
-    of the shard's units; a pending unit its shard's file lacks (a short shard) is kept."""
+    of units the shard holds: they load once (the shard's copy) and the generator removes
+    them. A pending unit its shard's file lacks (a packed subset) is a sample of its own."""
     out = tmp_path / "data"
-    store = open_dataset(out, _manifest())
-    run_generator(store, _prepare, _make, progress=False, limit=4)
+    run_generator(open_dataset(out, _manifest()), _prepare, _make, progress=False, limit=4)
     shard = ShardStore(out, Manifest.read(out))
     data = shard.load()
-    np.savez(shard.sample_path(2), **{k: v[2] for k, v in data.items()})              # stranded copy of unit 2
+    row = {k: v[2] for k, v in data.items()}
+    np.savez(shard.sample_path(2), **row)                                              # stranded copy of unit 2
     np.savez(shard.sample_path(3), **{**{k: v[3] for k, v in data.items()}, "x": data["x"][3] + 9})
     np.savez(shard.sample_path(9), **{**{k: v[0] for k, v in data.items()}, "unit": np.asarray(9)})
     again = shard.load()
     assert again["unit"].tolist() == [0, 1, 2, 3, 9]
     assert np.array_equal(again["x"][:4], data["x"])         # the shard's copy wins
-    assert shard.remove_stranded_samples() == 2 and sorted(p.name for p in (out / "pending").iterdir()) == ["0000009.npz"]
+    assert run_generator(open_dataset(out, _manifest()), _prepare, _make, progress=False, limit=0).made == 0
+    assert sorted(p.name for p in (out / "pending").iterdir()) == ["0000009.npz"]   # the copies removed on opening
+    # a shard file that holds units 0 and 2 of its range only (a pack of some splits)
+    np.savez_compressed(shard.shard_path(0), **{k: v[[0, 2]] for k, v in data.items()})
+    np.savez(shard.sample_path(1), **{k: v[1] for k, v in data.items()})
+    np.savez(shard.sample_path(2), **row)
+    assert [p.name for p in shard.stranded_samples()] == ["0000002.npz"]
+    assert shard.load()["unit"].tolist() == [0, 1, 2, 9]
 
 
 def test_a_dataset_grows_but_never_mixes_settings(tmp_path):

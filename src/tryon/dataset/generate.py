@@ -56,7 +56,9 @@ def open_dataset(folder: str | Path, manifest: Manifest, force: bool = False) ->
         claim_work_dir(folder, resume=False, force=force)
     store = ShardStore(folder, manifest)
     store.write_manifest()
-    store.remove_stranded_samples()
+    stranded = store.remove_stranded_samples()
+    if stranded:
+        print(f"removed {stranded} pending sample file(s) their shard already holds (left by a stopped run)")
     store.reopen_short_shards()
     return store
 

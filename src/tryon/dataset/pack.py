@@ -115,10 +115,13 @@ def _link(a: Path, b: Path, replace: bool = False) -> None:
 
 
 def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
-    """The sample files of `src`: its shards, then its pending samples."""
+    """The sample files of `src`: its shards, then its pending samples (not copies of
+    units a shard already holds)."""
     store = ShardStore(src, manifest)
     shards = sorted(store.shards.glob("*.npz")) if store.shards.is_dir() else []
-    files = shards + (sorted(store.pending.glob("*.npz")) if store.pending.is_dir() else [])
+    stranded = set(store.stranded_samples())
+    pending = sorted(p for p in store.pending.glob("*.npz") if p not in stranded) if store.pending.is_dir() else []
+    files = shards + pending
     if not files:
         raise DatasetError(f"{src} holds no samples to pack")
     return files
@@ -127,9 +130,9 @@ def _sample_files(src: Path, manifest: Manifest) -> list[Path]:
 def _read_keys(f: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
     """Some arrays of a sample file, without unpacking the others (its vertices)."""
     try:
-        return {k: np.atleast_1d(v) for k, v in read_npz(f, "dataset file", keys=keys).items()}
+        return {k: np.atleast_1d(v) for k, v in read_npz(f, "dataset file", allow_large=True, keys=keys).items()}
     except InputFileError as exc:
-        raise DatasetError(f"{exc}; make it again") from exc
+        raise DatasetError(f"{exc}; make that file again") from exc
 
 
 def _units(f: Path, splits: list[str] | None = None) -> list[int]:

@@ -140,28 +140,33 @@ class ShardStore:
     def _shard_complete(self, k: int) -> bool:
         """A shard written while the count was smaller can miss units the count now has."""
         try:
-            return len(read_npz(self.shard_path(k), "dataset shard", keys=("unit",))["unit"]) == len(self.shard_units(k))
+            units = read_npz(self.shard_path(k), "dataset shard", allow_large=True, keys=("unit",))["unit"]
+            return len(units) == len(self.shard_units(k))
         except InputFileError:
             return False
 
-    def remove_stranded_samples(self) -> int:
-        """Pending files of units their shard's file already holds (a run stopped between
-        writing a shard and removing its pending files): removed; how many."""
+    def stranded_samples(self) -> list[Path]:
+        """Pending files of units their shard's file already holds: copies a run stopped
+        between writing a shard and removing its pending files left behind."""
+        out: list[Path] = []
         if not self.pending.is_dir():
-            return 0
-        removed = 0
+            return out
         for k in range(self.num_shards()):
-            stranded = [self.sample_path(u) for u in self.shard_units(k) if self.sample_path(u).exists()]
-            if stranded and self.shard_path(k).exists():
+            pending = [self.sample_path(u) for u in self.shard_units(k) if self.sample_path(u).exists()]
+            if pending and self.shard_path(k).exists():
                 try:
-                    held = set(read_npz(self.shard_path(k), "dataset shard", keys=("unit",))["unit"].tolist())
+                    held = set(read_npz(self.shard_path(k), "dataset shard", allow_large=True, keys=("unit",))["unit"].tolist())
                 except InputFileError:
                     continue
-                for p in stranded:
-                    if int(p.stem) in held:
-                        p.unlink()
-                        removed += 1
-        return removed
+                out += [p for p in pending if int(p.stem) in held]
+        return out
+
+    def remove_stranded_samples(self) -> int:
+        """Removes `stranded_samples`; how many there were."""
+        stranded = self.stranded_samples()
+        for p in stranded:
+            p.unlink()
+        return len(stranded)
 
     def reopen_short_shards(self) -> None:
         """After the count grew, the last shard of the old count may be short: its samples
