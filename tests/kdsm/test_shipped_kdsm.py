@@ -14,6 +14,7 @@ pytestmark = [pytest.mark.anny]
 def test_the_shipped_models_load_and_carry_their_cards():
     paths = sorted(MODELS_DIR.glob("*.npz"))
     assert shipped_model_path("kdsm-hybrid") in paths and shipped_model_path("jin-uvn") in paths
+    assert shipped_model_path("kdsm-hybrid", from_rest=True) in paths
     for p in paths:
         assert p.stat().st_size < 10e6
         model = KdsmModel.load(p)
@@ -25,5 +26,7 @@ def test_the_shipped_models_load_and_carry_their_cards():
         assert x.shape == model.rig.x0.shape and np.isfinite(x).all()
         # the readable card beside it says what the model's own card holds (settings it predates read as they were then)
         assert p.with_suffix(".md").read_text() == card_markdown(card)
-        if model.method == "kdsm-hybrid":
+        from_rest = card["manifest"]["spec"].get("from_rest", False)
+        assert p.stem.endswith("-from-rest") == from_rest   # each pose simulated from the rest drape, or carried
+        if model.method == "kdsm-hybrid" and not from_rest:
             assert model.smoothing == 1.0 and "smoothed with strength 1," in card_markdown(card)

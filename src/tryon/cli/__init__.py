@@ -232,7 +232,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         check_output_dir(Path(args.drape_dir) / "viewer", force=args.force)
         if args.screenshot:
             find_browser()
-        live = LivePoser(args.drape_dir, args.model or shipped_model_path())
+        live = LivePoser(args.drape_dir, args.model or shipped_model_path(from_rest=True))
     elif args.model or pose:
         raise TryonError("--model and --pose are for --live")
     out = write_viewer(args.drape_dir, animation=args.animation, force=args.force)
@@ -520,7 +520,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--force", action="store_true", help="replace DRAPE_DIR/viewer even if tryon did not write it")
     v.add_argument("--live", action="store_true",
                    help="pose sliders: the garment in each pose predicted by a KDSM model as the sliders move")
-    v.add_argument("--model", help="--live: the KDSM model (default: the shipped hybrid, T-shirt M)")
+    v.add_argument("--model", help="--live: the KDSM model (default: the shipped hybrid trained on poses from rest, T-shirt M)")
     v.add_argument("--pose", nargs="+", metavar="NAME=DEG",
                    help="--live: where sliders start, e.g. arm_elevation.L=120 elbow_flexion.R=60")
     v.set_defaults(func=_cmd_view)

@@ -162,14 +162,19 @@ class KdsmModel:
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 SHIPPED = "tshirt-M-female"   # the garment and body of the shipped models' pose dataset
+FROM_REST = "-from-rest"      # the name's ending for a model trained on poses from rest (`--from-rest`)
 
 
-def shipped_model_path(method: str = "kdsm-hybrid") -> Path:
-    """The model of `method` that ships with tryon (the T-shirt M on the female fit model)."""
-    path = MODELS_DIR / f"{SHIPPED}-{method}.npz"
+def shipped_model_path(method: str = "kdsm-hybrid", from_rest: bool = False) -> Path:
+    """The model of `method` that ships with tryon (the T-shirt M on the female fit model).
+    `from_rest`: the one trained on poses each simulated from the rest drape, whose cloth is
+    a function of the pose alone (live posing's default); otherwise the one trained on poses
+    carried through sequences, which comes nearer a simulated animation (animation's default)."""
+    path = MODELS_DIR / f"{SHIPPED}-{method}{FROM_REST if from_rest else ''}.npz"
     if not path.is_file():
         known = sorted(p.stem for p in MODELS_DIR.glob("*.npz"))
-        raise TryonError(f"no KDSM model of {method!r} ships with tryon (shipped: {', '.join(known) or 'none'}); "
+        what = f"{method!r}" + (" trained on poses from rest" if from_rest else "")
+        raise TryonError(f"no KDSM model of {what} ships with tryon (shipped: {', '.join(known) or 'none'}); "
                          "train one with tryon train kdsm and pass --model")
     return path
 
