@@ -1,7 +1,8 @@
 """How well each method's targets represent a pose dataset, before any learning (the KDSM
 paper's Table 1): the error of the cloth rebuilt from the exact target (what a perfect
-network would give) and how much the target jumps between consecutive poses of a
-sequence (|delta d|: what makes a target hard to learn)."""
+network would give), how much the target jumps between consecutive poses of a sequence
+(|delta d|) and how far it spreads over all the poses (what a network must learn: a
+target that moves less with the pose leaves it less to get wrong)."""
 
 from __future__ import annotations
 
@@ -48,11 +49,14 @@ def _targets(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, methods, smoothings
 def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: bool = False,
                      smoothings=(HYBRID_SMOOTHING,), methods=TARGET_METHODS) -> list[dict]:
     """Table 1 over sequences (cloth [S,F,n,3], poses [S,F,J,3]): per method, the rebuilt
-    cloth's vertex error (cm, mean and max) and the target's change between consecutive
-    poses (cm, mean and max over vertices and pose pairs). Skinning's row, one per method
-    in `methods`, the hybrid's one per value of `smoothings` (recorded in its row)."""
+    cloth's vertex error (cm, mean and max), the target's change between consecutive
+    poses (cm, mean and max over vertices and pose pairs) and its spread over all the
+    poses (`pose_spread_cm`: per vertex, the RMS distance of its target from the target's
+    mean over the poses; the mean and 95th percentile over vertices). Skinning's row, one
+    per method in `methods`, the hybrid's one per value of `smoothings` (recorded in its row)."""
     err: dict[tuple, list] = {}
     jump: dict[tuple, list] = {}
+    spread: dict[tuple, TargetSpread] = {}
     t0 = time.perf_counter()
     for s in range(len(x)):
         res = _targets(rig, x[s], poses[s], methods, tuple(smoothings))
@@ -60,6 +64,7 @@ def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: b
             err.setdefault(key, []).append(100.0 * np.linalg.norm(d["rebuilt"] - x[s], axis=-1).ravel())
             if "target" in d:
                 jump.setdefault(key, []).append(100.0 * np.linalg.norm(np.diff(d["target"], axis=0), axis=-1).ravel())
+                spread.setdefault(key, TargetSpread()).add(d["target"])
         if progress:
             print(f"targets: sequence {s + 1}/{len(x)} ({time.perf_counter() - t0:.0f} s)", flush=True)
     rows = []
@@ -71,8 +76,30 @@ def generation_table(rig: KdsmRig, x: np.ndarray, poses: np.ndarray, progress: b
         if (m, smoothing) in jump:
             j = np.concatenate(jump[(m, smoothing)])
             row.update({"mean_delta_d_cm": float(j.mean()), "max_delta_d_cm": float(j.max())})
+            per_vertex = spread[(m, smoothing)].per_vertex_cm()
+            row.update({"pose_spread_cm": float(per_vertex.mean()),
+                        "pose_spread_p95_cm": float(np.percentile(per_vertex, 95))})
         rows.append(row)
     return rows
+
+
+class TargetSpread:
+    """Running per-vertex sums of a target over poses, for its spread about its mean."""
+
+    def __init__(self) -> None:
+        self.count, self.total, self.total_sq = 0, 0.0, 0.0
+
+    def add(self, targets: np.ndarray) -> None:
+        """Targets [F,n,3] of F more poses."""
+        t = np.asarray(targets, np.float64)
+        self.count += len(t)
+        self.total = self.total + t.sum(0)
+        self.total_sq = self.total_sq + (t * t).sum((0, 2))
+
+    def per_vertex_cm(self) -> np.ndarray:
+        """Each vertex's RMS distance from its mean target [n] (cm)."""
+        mean = self.total / self.count
+        return 100.0 * np.sqrt(np.maximum(self.total_sq / self.count - (mean * mean).sum(1), 0.0))
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
