@@ -87,17 +87,22 @@ class TargetSpread:
     """Running per-vertex sums of a target over poses, for its spread about its mean."""
 
     def __init__(self) -> None:
-        self.count, self.total, self.total_sq = 0, 0.0, 0.0
+        self.count = 0
+        self.total: np.ndarray | None = None       # [n,3] sum of the targets
+        self.total_sq: np.ndarray | None = None    # [n] sum of their squared lengths
 
     def add(self, targets: np.ndarray) -> None:
         """Targets [F,n,3] of F more poses."""
         t = np.asarray(targets, np.float64)
         self.count += len(t)
-        self.total = self.total + t.sum(0)
-        self.total_sq = self.total_sq + (t * t).sum((0, 2))
+        self.total = t.sum(0) if self.total is None else self.total + t.sum(0)
+        sq = (t * t).sum((0, 2))
+        self.total_sq = sq if self.total_sq is None else self.total_sq + sq
 
     def per_vertex_cm(self) -> np.ndarray:
         """Each vertex's RMS distance from its mean target [n] (cm)."""
+        if not self.count:
+            raise ValueError("no targets were added")
         mean = self.total / self.count
         return 100.0 * np.sqrt(np.maximum(self.total_sq / self.count - (mean * mean).sum(1), 0.0))
 
