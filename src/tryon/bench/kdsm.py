@@ -3,8 +3,9 @@ pose dataset.
 
 - Table 1 (`table: generation`): for each method, the cloth rebuilt from its exact target
   (what a perfect network gives), how far the target moves between consecutive poses and
-  how far it spreads over all the poses, on the test sequences (the hybrid's row once for each smoothing a benched hybrid was
-  trained with, else at the default; each row says which).
+  how far it spreads over all the poses, on the test sequences (the hybrid's row once for
+  each smoothing a benched hybrid was trained with, else at the default; each row says
+  which).
 - Tables 2 and 3 (`table: learned`): every trained model (`tryon train kdsm`), and
   skinning the rest drape through the volume, on every split: the per-frame mean vertex
   error (cm; mean and spread over frames), the error of the volume the garment encloses
