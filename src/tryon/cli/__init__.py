@@ -85,8 +85,11 @@ def _allow_large_arg(p: argparse.ArgumentParser) -> None:
 def _measurements(args: argparse.Namespace):
     from tryon.body.fit import Measurements
 
+    from tryon.body.fit import TAPE_RANGE_CM
+
+    extra = {f"{k}_cm": getattr(args, f"{k}_cm", None) for k in TAPE_RANGE_CM}
     return Measurements(height_cm=args.height_cm, gender=args.gender, weight_kg=args.weight_kg, bmi=args.bmi, age=args.age,
-                        chest_cm=args.chest_cm, waist_cm=args.waist_cm, hip_cm=args.hip_cm)
+                        chest_cm=args.chest_cm, waist_cm=args.waist_cm, hip_cm=args.hip_cm, **extra)
 
 
 def _cmd_drape(args: argparse.Namespace) -> int:
@@ -271,12 +274,66 @@ def _cmd_body_range(args: argparse.Namespace) -> int:
         with atomic_write(args.json) as fh:
             fh.write(dumps_json(rows, indent=2))
     for r in rows:
-        print(f"{r['gender']:7s} BMI asked {r['bmi_asked']:5.1f} achieved {r['bmi_achieved']:5.1f}  distortion {r['mesh_distortion']:.2f}  "
+        print(f"{r['gender']:7s} {r['body']:12s} BMI asked {r['bmi_asked']:5.1f} achieved {r['bmi_achieved']:5.1f}  distortion {r['mesh_distortion']:.2f}  "
               f"largest local change {r['largest_local_change']:.2f}  {'ok' if r['supported'] else 'outside the supported range'}")
     if args.render:
         from tryon.body.range import render_range_sheet
 
         print(f"bodies -> {render_range_sheet(args.render, height_cm=args.height_cm)}")
+    return 0
+
+
+def _cmd_body_tapes(args: argparse.Namespace) -> int:
+    from tryon.body.fit import fit_body
+    from tryon.body.tape import TAPES, tape_measurements
+
+    fit = fit_body(_measurements(args), prior=not args.anny_average)
+    tapes = tape_measurements(fit.shape)
+    print(f"{'measurement':16s} {'body cm':>8s} {'asked':>7s} {'prior':>7s} {'prior sd':>8s}")
+    for name in TAPES:
+        key = f"{name}_cm"
+        asked = f"{fit.asked[key]:.1f}" if key in fit.asked else ""
+        prior = f"{fit.prior[key]:.1f}" if key in fit.prior else ""
+        sd = f"{fit.prior_sd[key]:.1f}" if key in fit.prior_sd else ""
+        print(f"{name:16s} {tapes[key]:8.1f} {asked:>7s} {prior:>7s} {sd:>8s}")
+    print(f"weight {fit.achieved['weight_kg']:.1f} kg, BMI {fit.achieved['bmi']:.1f}; fitted in {fit.wall_s:.1f} s")
+    for note in fit.notes:
+        print(f"note: {note}")
+    if args.json:
+        from tryon.io.atomic import atomic_write
+
+        with atomic_write(args.json) as fh:
+            fh.write(dumps_json({"tapes_cm": tapes, **fit.report()}, indent=2))
+    if args.render:
+        from tryon.body.tape_picture import render_tapes
+
+        print(f"tapes -> {render_tapes(args.render, fit.shape)}")
+    return 0
+
+
+def _cmd_body_prior(args: argparse.Namespace) -> int:
+    from tryon.body.prior import PRIOR_JSON, default_prior, held_out, load_ansur, rebuild, regression_errors
+
+    if args.rebuild:
+        doc = rebuild()
+        print(f"prior -> {PRIOR_JSON} (train {doc['split']['train']}, held out {doc['split']['test']} people)")
+    _, test = held_out(load_ansur())
+    errors = regression_errors(default_prior(), test)
+    print("held-out ANSUR II people, each measurement from stature, weight, sex and age (mean relative error):")
+    for name, pct in errors.items():
+        print(f"  {name:20s} {pct:5.2f} %")
+    return 0
+
+
+def _cmd_body_warmstart(args: argparse.Namespace) -> int:
+    from tryon.body.warmstart import WARMSTART_JSON
+    from tryon.body.warmstart_build import build
+
+    if not args.rebuild:
+        raise TryonError("tryon body-warmstart only rebuilds (--rebuild): the warm start ships with tryon")
+    doc = build(n=args.people, seed=args.seed)
+    rms = ", ".join(f"{g} {d['train_rms']:.3f}" for g, d in doc["genders"].items())
+    print(f"warm start -> {WARMSTART_JSON} ({args.people} fits per gender in {doc['build_s']:.0f} s; rms {rms})")
     return 0
 
 
@@ -301,10 +358,15 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
 
 
 BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm",
-           "size"]
+           "size", "anthropometry"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "anthropometry":
+        from tryon.bench.anthropometry import run_anthropometry_bench
+
+        run_anthropometry_bench(args.json, per_sex=args.people or (3 if args.quick else 30))
+        return 0
     if args.what == "sim":
         from tryon.bench.sim import run_sim_bench
 
@@ -420,9 +482,18 @@ def _body_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bmi", type=float, help="body mass index (instead of --weight-kg)")
     p.add_argument("--gender", choices=["male", "female"], required=True)
     p.add_argument("--age", type=float, default=30.0, help="years")
-    p.add_argument("--chest-cm", type=float, help="chest / bust girth (optional)")
-    p.add_argument("--waist-cm", type=float, help="waist girth (optional)")
-    p.add_argument("--hip-cm", type=float, help="hip girth (optional)")
+    p.add_argument("--chest-cm", type=float, help="chest / bust girth at the bust point (optional)")
+    p.add_argument("--waist-cm", type=float, help="natural waist girth, the narrowest (optional)")
+    p.add_argument("--hip-cm", type=float, help="hip girth at the fullest part of the buttocks (optional)")
+    p.add_argument("--waist-navel-cm", type=float, help="waist girth at the navel (optional)")
+    p.add_argument("--neck-cm", type=float, help="neck girth at its base (optional)")
+    p.add_argument("--thigh-cm", type=float, help="thigh girth at the top of the thigh (optional)")
+    p.add_argument("--crotch-height-cm", "--inseam-cm", dest="crotch_height_cm", type=float,
+                   help="crotch height above the floor, the inseam (optional)")
+    p.add_argument("--shoulder-width-cm", type=float, help="distance between the shoulder points (acromia) (optional)")
+    p.add_argument("--arm-length-cm", type=float, help="shoulder point over the elbow to the wrist (optional)")
+    p.add_argument("--waist-height-cm", type=float, help="navel above the floor (optional)")
+    p.add_argument("--wrist-cm", type=float, help="wrist girth (optional)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -531,6 +602,25 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--render", help="also render the bodies (front views, BMI 14-48) into this PNG")
     r.set_defaults(func=_cmd_body_range)
 
+    t = sub.add_parser("body-tapes", help="fit a body and report every tape measurement (ISO 8559-1 / ANSUR II "
+                       "landmarks), with the ANSUR II prior's value for each")
+    _body_args(t)
+    t.add_argument("--anny-average", action="store_true",
+                   help="Anny's average shape of the stature and weight instead of the ANSUR II prior's")
+    t.add_argument("--json", help="also write the tapes and the fit report as JSON")
+    t.add_argument("--render", help="also draw the tapes on the body (front and side) into this PNG")
+    t.set_defaults(func=_cmd_body_tapes)
+
+    q = sub.add_parser("body-prior", help="the ANSUR II prior's errors on held-out people (--rebuild: fit it again)")
+    q.add_argument("--rebuild", action="store_true", help="fit the prior on the training split and write it")
+    q.set_defaults(func=_cmd_body_prior)
+
+    w = sub.add_parser("body-warmstart", help="rebuild the body fit's warm start (cold fits of people across the range)")
+    w.add_argument("--rebuild", action="store_true", help="fit the people and write the warm start")
+    w.add_argument("--people", type=int, default=160, help="people per gender (default 160)")
+    w.add_argument("--seed", type=int, default=0)
+    w.set_defaults(func=_cmd_body_warmstart)
+
     f = sub.add_parser("fabrics", help="list fabric presets")
     f.add_argument("--json", action="store_true")
     f.set_defaults(func=_cmd_fabrics)
@@ -560,6 +650,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--reference", metavar="DIR",
                    help="fidelity, fit-fabric: a folder of ARCSim runs (*.npz, ground truth included; default: the copy "
                         "in the package)")
+    b.add_argument("--people", type=int, metavar="N",
+                   help="anthropometry: held-out ANSUR II people per sex, spread over the BMI range (default 30)")
     b.add_argument("--matrix", action="store_true",
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)

@@ -96,5 +96,7 @@ def draw_measurements(seed: int, index: int, ranges: BodyRanges) -> tuple[str, f
 
 def sample_body(seed: int, index: int, ranges: BodyRanges) -> BodySample:
     gender, age, height, bmi = draw_measurements(seed, index, ranges)
-    fit = fit_body(Measurements(height_cm=height, bmi=bmi, gender=gender, age=age))
+    # pinned to Anny's average shape of the stature and BMI drawn (prior=False): the datasets
+    # in git were made so, and a resumed run must make the same bodies
+    fit = fit_body(Measurements(height_cm=height, bmi=bmi, gender=gender, age=age), prior=False)
     return BodySample(index, gender, age, height, bmi, fit.params)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tryon.body.anny_model import LOCAL_CHANGES, PHENOTYPES, ShapeParams, body_model
+from tryon.body.anny_model import LEGACY_LOCAL_CHANGES, LOCAL_CHANGES, PHENOTYPES, ShapeParams, body_model
 from tryon.body.fit import Measurements, fit_body
 from tryon.body.measure import drafting_measurements
 from tryon.body.pose import BodyPose, posed_body
@@ -178,7 +178,7 @@ def build_references(manifest: Manifest, folder: Path, progress: bool = True) ->
 def size_pattern(garment: str, gender: str, size: str):
     """The fit model of a standard size, its drafting measurements and the garment's pattern."""
     req = DrapeRequest(Measurements(height_cm=170, weight_kg=70, gender=gender), garment=garment, size=size)
-    fit = fit_body(fit_model_measurements(req))
+    fit = fit_body(fit_model_measurements(req), prior=False)  # pinned, as in tryon drape
     m = drafting_measurements(fit.shape)
     return fit, m, draft(garment, m, size=size, meta={"gender": gender})
 
@@ -226,8 +226,13 @@ def drape_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit:
 
 
 def shape_vector(params: ShapeParams) -> np.ndarray:
-    """Anny's phenotypes (PHENOTYPES order) then local changes (LOCAL_CHANGES order)."""
-    return np.concatenate([params.phenotype_tensor()[0].numpy(), params.local_tensor()[0].numpy()])
+    """Anny's phenotypes (PHENOTYPES order) then local changes (LOCAL_CHANGES order). The
+    controls appended after the first `LEGACY_LOCAL_CHANGES` are left out when all zero
+    (the pinned bodies of the datasets): their vectors keep the length stored in git."""
+    local = params.local_tensor()[0].numpy()
+    if not local[LEGACY_LOCAL_CHANGES:].any():
+        local = local[:LEGACY_LOCAL_CHANGES]
+    return np.concatenate([params.phenotype_tensor()[0].numpy(), local])
 
 
 def shape_params(vector: np.ndarray) -> ShapeParams:

@@ -481,7 +481,9 @@ def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
     check_size_fits(request, person)
     fm_meas = fit_model_measurements(request)
     t1 = time.perf_counter()
-    fit_model = fit_body(fm_meas) if fm_meas is not None else None
+    # the size chart's fit model stays Anny's average shape of the chart (pinned: every
+    # standard-size pattern, the learned drapes and their datasets are drafted on it)
+    fit_model = fit_body(fm_meas, prior=False) if fm_meas is not None else None
     timings["fit_model_s"] = time.perf_counter() - t1
     model_shape = (fit_model or person).shape
     pm = drafting_measurements(person.shape)
