@@ -22,5 +22,5 @@ def size_m_man():
 
     m = size_measurements("M", "male")
     fit = fit_body(Measurements(height_cm=m["height_cm"], gender="male", chest_cm=m["chest_cm"], waist_cm=m["waist_cm"],
-                                hip_cm=m["hip_cm"]))
+                                hip_cm=m["hip_cm"]), prior=False)  # as tryon drape fits a size's fit model
     return fit.shape, drafting_measurements(fit.shape)

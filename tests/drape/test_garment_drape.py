@@ -114,7 +114,7 @@ def test_large_tops_sew_without_crossing_themselves(gender, size):
 
     s = size_measurements(size, gender)
     fit = fit_body(Measurements(height_cm=s["height_cm"], gender=gender, chest_cm=s["chest_cm"], waist_cm=s["waist_cm"],
-                                hip_cm=s["hip_cm"]))
+                                hip_cm=s["hip_cm"]), prior=False)  # as tryon drape fits a size's fit model
     m = drafting_measurements(fit.shape)
     body = posed_body(fit.shape, "a", m["crotch_height"])
     g = dress_pattern(draft("tshirt", m, size=size), body, load_fabric("gray-interlock"), edge_length=0.012, progress=False)
@@ -141,11 +141,13 @@ def test_a_fold_in_the_trouser_placement_is_smoothed_out_before_welding():
 
 
 def test_trousers_made_to_measure_for_a_very_heavy_man_keep_every_triangle():
-    # 200 cm, 180 kg: pushing the placed trousers out of his skin put all three corners of
-    # a triangle on one point (a zero-area face the simulator refuses); they are spread again
+    # 200 cm, 180 kg on Anny's average shape: pushing the placed trousers out of his skin put
+    # all three corners of a triangle on one point (a zero-area face the simulator refuses);
+    # they are spread again. (The ANSUR II prior's body of these numbers has thighs that
+    # meet through each other; dressing it leaves crossings: docs/BODY.md, still weak.)
     from tryon.body.fit import fit_body
 
-    fit = fit_body(Measurements(height_cm=200, weight_kg=180, gender="male"))
+    fit = fit_body(Measurements(height_cm=200, weight_kg=180, gender="male"), prior=False)
     m = drafting_measurements(fit.shape)
     p = draft("trousers", m, size="made-to-measure")
     body = posed_body(fit.shape, "a", m["crotch_height"])
@@ -409,10 +411,11 @@ def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
     # a skirt whose hip would stretch over this body but whose waistband would not close
     size, why = nearest_size("skirt", {"chest_cm": 150, "waist_cm": 132, "hip_cm": 147}, "female")
     assert size == MADE_TO_MEASURE and "waist is 132 cm" in why
-    # the demo man (172 cm, 84 kg) in the trouser cases' size M: its band 14 % under his waist still closes
+    # the demo man (172 cm, 84 kg) on Anny's average shape, in the trouser cases' size M: its
+    # band 14 % under his waist still closes (the ANSUR II prior's body has a 94 cm waist, 8 %)
     from tryon.body.fit import fit_body
 
-    demo = fit_body(Measurements(height_cm=172, weight_kg=84, gender="male")).achieved
+    demo = fit_body(Measurements(height_cm=172, weight_kg=84, gender="male"), prior=False).achieved
     made = 100 * Ease().waistband + size_measurements("M", "male")["waist_cm"]
     assert 1.10 < demo["waist_cm"] / made < 1.0 + WAISTBAND_STRETCH - 0.005
     assert size_too_small("trousers", "M", size_measurements("M", "male"), demo) is None

@@ -323,6 +323,8 @@ def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False, prior:
     evals = [0]
     aimed: dict[str, float] = {}
     aimed_sd: dict[str, float] = {}
+    if not isinstance(prior, (bool, AnthropometricPrior)):
+        raise TypeError(f"prior must be True, False or an AnthropometricPrior, not {prior!r}")
     if prior is False:
         prob = _Problem(m, [[i] for i in range(LEGACY_LOCAL)])
         z = _solve(prob, prob.initial(), max_iter, evals)
@@ -369,9 +371,11 @@ def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False, prior:
     fit = BodyFit(shape, params, asked, achieved, evals[0], time.perf_counter() - t0, distortion=mesh_distortion(shape),
                   prior={f"{k}_cm": v for k, v in aimed.items()}, prior_sd={f"{k}_cm": v for k, v in aimed_sd.items()},
                   unknowns=z.numpy().copy())
-    for key in asked:
-        tol = {"height_cm": 1.0, "bmi": 0.5, "weight_kg": 1.5}.get(key, 1.0 if prior is not False else 2.0)
-        if key in achieved and abs(achieved[key] - asked[key]) > tol:
+    tolerances = {"height_cm": 1.0, "bmi": 0.5, "chest_cm": 2.0, "waist_cm": 2.0, "hip_cm": 2.0}  # the pinned fit's
+    if prior is not False:
+        tolerances = {k: {"height_cm": 1.0, "bmi": 0.5, "weight_kg": 1.5}.get(k, 1.0) for k in asked}
+    for key, tol in tolerances.items():
+        if key in asked and key in achieved and abs(achieved[key] - asked[key]) > tol:
             fit.notes.append(f"{key}: asked {asked[key]:.1f}, achieved {achieved[key]:.1f} (Anny cannot reach it "
                              f"together with the other measurements)")
     return fit

@@ -287,7 +287,13 @@ def _cmd_body_tapes(args: argparse.Namespace) -> int:
     from tryon.body.fit import fit_body
     from tryon.body.tape import TAPES, tape_measurements
 
-    fit = fit_body(_measurements(args), prior=not args.anny_average)
+    m = _measurements(args)
+    if args.anny_average:
+        extra = sorted(k for k in m.tapes() if k not in ("chest", "waist", "hip"))
+        if extra:
+            raise TryonError(f"--anny-average fits stature, weight and chest / waist / hip only; drop "
+                             + ", ".join(f"--{k.replace('_', '-')}-cm" for k in extra))
+    fit = fit_body(m, prior=not args.anny_average)
     tapes = tape_measurements(fit.shape)
     print(f"{'measurement':16s} {'body cm':>8s} {'asked':>7s} {'prior':>7s} {'prior sd':>8s}")
     for name in TAPES:
