@@ -2,9 +2,10 @@
 them.
 
 A sample draws a gender, an age, a stature uniform in the gender's height range and a
-BMI uniform in the BMI range, and fits Anny to them with `tryon.body.fit.fit_body` (under
-a second: only stature and BMI are asked), so a dataset's bodies are exactly the bodies
-`tryon drape` makes for the same measurements.
+BMI uniform in the BMI range, and fits Anny to them with the pinned fit
+`tryon.body.fit.fit_body(..., prior=False)` (Anny's average shape of that stature and BMI,
+as before the ANSUR II prior): the datasets in git were made so and a resumed run makes the
+same bodies. `tryon drape` on such a body (`drape(request, person=...)`) gives the sample.
 
 Sample `i` of a seed is drawn from its own generator (`numpy` seeded with `[seed, i]`), so
 a dataset can grow, resume or run its samples in any order and still get the same bodies.

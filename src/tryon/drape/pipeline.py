@@ -471,12 +471,14 @@ def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length
     return start, garment
 
 
-def drape(request: DrapeRequest, progress: bool = True) -> DrapeResult:
-    """Run the whole try-on; see the module docstring. Outputs are written by `write_outputs`."""
+def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None = None) -> DrapeResult:
+    """Run the whole try-on; see the module docstring. Outputs are written by `write_outputs`.
+    `person`: drape on this fitted body instead of fitting `request.body` (e.g. a dataset's
+    pinned body, `fit_body(..., prior=False)`)."""
     request.validate()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    person = fit_body(request.body)
+    person = person or fit_body(request.body)
     timings["fit_body_s"] = time.perf_counter() - t0
     check_size_fits(request, person)
     fm_meas = fit_model_measurements(request)
