@@ -23,6 +23,7 @@ import torch
 from scipy.spatial import ConvexHull
 
 from tryon.body.anny_model import BodyShape
+from tryon.body.tape import horizontal_section as slice_points
 
 BODY_DENSITY = 980.0  # kg/m^3, as in anny.Anthropometry
 ARM_BONE_WORDS = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
@@ -67,17 +68,6 @@ def torso_edges(shape: BodyShape) -> np.ndarray:
         e = np.unique(np.sort(e, axis=1), axis=0)
         _TORSO_EDGES[key] = e[~arm[e].any(1)]
     return _TORSO_EDGES[key]
-
-
-def slice_points(v: torch.Tensor, edges: np.ndarray, z: float) -> torch.Tensor:
-    """Points [P,2] (x, y) where the edges cross the plane at height z (differentiable in v)."""
-    zv = v[:, 2].detach().numpy()
-    a, b = edges[:, 0], edges[:, 1]
-    cross = (zv[a] - z) * (zv[b] - z) < 0
-    a, b = torch.from_numpy(a[cross]), torch.from_numpy(b[cross])
-    va, vb = v[a], v[b]
-    t = (z - va[:, 2]) / (vb[:, 2] - va[:, 2])
-    return (va + t[:, None] * (vb - va))[:, :2]
 
 
 def hull_perimeter(points: torch.Tensor) -> torch.Tensor:
