@@ -160,13 +160,16 @@ def test_tapes_of_a_scaled_body_scale_with_it():
 @pytest.mark.anny
 def test_landmarks_lie_where_anatomy_puts_them():
     from tryon.body.anny_model import ShapeParams, body_model
-    from tryon.body.tape import find_landmarks, tape_measurements
+    from tryon.body.tape import find_landmarks, neck_points, tape_measurements
 
     for gender in (0.0, 1.0):
         s = body_model().rest_shape(ShapeParams(gender=gender))
         v = s.vertices.detach().numpy()
         lm = find_landmarks(s)
-        z = {k: v[getattr(lm, k), 2] for k in ("crotch", "buttock", "navel", "bust", "suprasternale", "cervicale")}
+        z = {k: v[getattr(lm, k), 2] for k in ("crotch", "buttock", "navel", "bust")}
+        c7, notch = neck_points(s, s.vertices)
+        z.update(suprasternale=notch[2], cervicale=c7[2])
+        assert notch[1] < c7[1]  # the notch in front, C7 behind
         assert z["crotch"] < z["buttock"] < z["navel"] < z["bust"] < z["suprasternale"] < z["cervicale"] + 0.02
         assert v[lm.navel, 1] < 0 < v[lm.buttock, 1]  # the navel in front, the buttocks behind
         assert abs(v[lm.acromion_l, 0] + v[lm.acromion_r, 0]) < 0.01  # left and right mirror
@@ -185,12 +188,26 @@ def test_a_body_from_height_and_weight_meets_the_prior():
 
     f = fit_body(Measurements(height_cm=168, weight_kg=70, gender="female", age=35))
     assert abs(f.achieved["height_cm"] - 168) < 0.5 and abs(f.achieved["weight_kg"] - 70) < 1.0
+    # each within half the spread of real people of her stature and weight (1.5 cm at least):
+    # the volume Anny cannot place where the prior wants it goes where people differ most
     for key in ("chest_cm", "waist_navel_cm", "hip_cm", "thigh_cm", "shoulder_width_cm", "arm_length_cm"):
-        assert abs(f.achieved[key] - f.prior[key]) < 1.5, (key, f.achieved[key], f.prior[key])
+        assert abs(f.achieved[key] - f.prior[key]) < max(1.5, f.prior_sd[key] / 2), (key, f.achieved[key], f.prior[key])
     local = f.params.local
     assert local["l-upperleg-fat-incr"] == pytest.approx(local["r-upperleg-fat-incr"])  # symmetric
     rep = f.report()
     assert rep["prior"]["aimed"]["hip_cm"] == f.prior["hip_cm"] and rep["prior"]["sd"]["hip_cm"] > 0
+
+
+@pytest.mark.anny
+def test_the_neck_and_wrist_meet_the_prior_on_a_body_that_lost_them():
+    """A woman of 157.6 cm, 72.6 kg, 42 (held-out ANSUR): when the jugular notch was a
+    picked vertex it moved between fit rounds and her neck came out 5.4 cm over the
+    prior's; the neck plane now follows the surface and the tight-spread tapes hold."""
+    from tryon.body.fit import Measurements, fit_body
+
+    f = fit_body(Measurements(height_cm=157.6, weight_kg=72.6, gender="female", age=42))
+    assert abs(f.achieved["neck_cm"] - f.prior["neck_cm"]) < 1.0
+    assert abs(f.achieved["wrist_cm"] - f.prior["wrist_cm"]) < 0.5
 
 
 @pytest.mark.anny
@@ -259,3 +276,22 @@ def test_body_tapes_command_reports_and_draws(tmp_path, capsys):
     assert Image.open(out).size[0] > 1000
     assert main(["body-tapes", "--height-cm", "170", "--weight-kg", "68", "--gender", "female", "--neck-cm", "90"]) == 2
     assert "neck 90 cm is outside the supported range" in capsys.readouterr().err
+
+
+@pytest.mark.anny
+def test_made_to_measure_trousers_reach_the_wearers_crotch():
+    # a 158 cm, 92 kg woman: her inner thighs cross the midline well below the crotch, and
+    # the construction crotch (lowest midline vertex) drafted her trousers 18 cm short
+    from tryon.body.fit import Measurements, fit_body
+    from tryon.body.measure import drafting_measurements, made_to_measure_measurements
+    from tryon.body.tape import find_landmarks
+    from tryon.garment.drafts import TROUSER_CROTCH_EASE, Ease, trouser_dims
+
+    shape = fit_body(Measurements(height_cm=158, weight_kg=92, gender="female")).shape
+    crotch = float(shape.vertices[find_landmarks(shape).crotch, 2])
+    m = made_to_measure_measurements(shape)
+    dims = trouser_dims(m, Ease())
+    assert dims["hem_z"] + dims["inseam"] == pytest.approx(crotch - TROUSER_CROTCH_EASE, abs=1e-6)
+    assert drafting_measurements(shape)["crotch_height"] < crotch - 0.05  # what it replaces
+    assert {k: v for k, v in m.items() if k != "crotch_height"} == {
+        k: v for k, v in drafting_measurements(shape).items() if k != "crotch_height"}

@@ -50,6 +50,20 @@ SCALE = {"height": 0.005, "bmi": 0.1, "girth": 0.005}
 # stature, which every length scales with, is held to 2 mm then
 PRIOR_SCALE = 0.01
 PRIOR_HEIGHT_SCALE = 0.002
+# The volume a BMI asks for has to go somewhere Anny's controls can put it. A measurement
+# people differ little in (neck, wrist: a prior sd of 0.5-1.5 cm) is held in proportion to
+# its sd below PRIOR_SD_REF (cm), so the volume does not settle where real people vary
+# least; hip and thigh, between which it went back and forth (a woman's thigh +1.5 cm
+# and hip -1.7 cm against the prior), are held to 0.5 cm each.
+PRIOR_SD_REF = 3.0
+PRIOR_SCALE_OF = {"thigh": 0.005, "hip": 0.005}
+# In the prior-guided fit the neck's controls may go to twice their targets and the fat
+# controls to 1.5 times (MakeHuman targets are linear offsets): Anny's heaviest bodies
+# (BMI 40+) otherwise ran out of places to carry their weight but the neck (+6 cm)
+LOCAL_RANGE = {"measure-neck-circ-incr": 2.0, "neck-scale-depth-incr": 2.0, "neck-scale-horiz-incr": 2.0,
+               "l-upperleg-fat-incr": 1.5, "r-upperleg-fat-incr": 1.5, "measure-thigh-circ-incr": 1.5,
+               "measure-hips-circ-incr": 1.5, "buttocks-volume-incr": 1.5, "stomach-pregnant-incr": 1.5,
+               "l-upperarm-fat-incr": 1.5, "r-upperarm-fat-incr": 1.5}
 NEUTRAL_PULL = 0.5
 # the local changes the fit used before the anthropometric prior: the pinned (prior=False) fit
 LEGACY_LOCAL = LEGACY_LOCAL_CHANGES
@@ -194,7 +208,8 @@ def _logit(p: float) -> float:
 
 
 class _Problem:
-    """Unknowns: logits of (weight, muscle, height, proportions) and atanh of local changes.
+    """Unknowns: logits of (weight, muscle, height, proportions) and atanh of local changes over
+    their reach (`LOCAL_RANGE`).
     `groups` lists the local changes each unknown drives (the others stay 0); `targets` are
     tape measurements (m) with their residual scales (m), aimed at with landmarks found once
     per round."""
@@ -207,8 +222,10 @@ class _Problem:
         self.target = {"height": m.height_cm / 100.0, "bmi": m.target_bmi()}
         self.groups = groups
         spread = torch.zeros(len(groups), len(LOCAL_CHANGES), dtype=DTYPE)
+        reach = torch.tensor([LOCAL_RANGE.get(k, 1.0) if targets is not None else 1.0 for k in LOCAL_CHANGES],
+                             dtype=DTYPE)
         for i, group in enumerate(groups):
-            spread[i, group] = 1.0
+            spread[i, group] = reach[group]
         self.spread = spread
         self.targets = targets  # None: the pinned fit on chest / waist / hip of `measure`
         self.girths = {k: v / 100.0 for k, v in m.girths().items()}
@@ -269,6 +286,11 @@ def prior_targets(m: Measurements, prior: AnthropometricPrior) -> tuple[dict[str
     mean = {k: pred.mean[key] for k, key in PRIOR_TAPES.items() if k not in skip}
     sd = {k: pred.sd[key] for k, key in PRIOR_TAPES.items() if k not in skip}
     return mean, sd
+
+
+def _prior_scale(name: str, sd_cm: float) -> float:
+    """Residual scale (m) of a measurement the prior predicts with spread `sd_cm`."""
+    return PRIOR_SCALE_OF.get(name, PRIOR_SCALE * min(1.0, sd_cm / PRIOR_SD_REF))
 
 
 def symmetric_groups() -> list[list[int]]:
@@ -332,7 +354,7 @@ def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False, prior:
         model = default_prior() if prior is True else prior
         aimed, aimed_sd = prior_targets(m, model)
         targets = {k: (v / 100.0, SCALE["girth"]) for k, v in m.tapes().items()}
-        targets.update({k: (v / 100.0, PRIOR_SCALE) for k, v in aimed.items()})
+        targets.update({k: (v / 100.0, _prior_scale(k, aimed_sd[k])) for k, v in aimed.items()})
         prob = _Problem(m, symmetric_groups(), targets=targets)
         z = prob.initial()
         targets.update(_shape_ratio_targets(prob, z, targets))  # on the cold start: Anny's average shape

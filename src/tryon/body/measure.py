@@ -23,6 +23,7 @@ import torch
 from scipy.spatial import ConvexHull
 
 from tryon.body.anny_model import BodyShape
+from tryon.body.tape import find_landmarks
 from tryon.body.tape import horizontal_section as slice_points
 
 BODY_DENSITY = 980.0  # kg/m^3, as in anny.Anthropometry
@@ -187,3 +188,14 @@ def drafting_measurements(shape: BodyShape) -> dict[str, float]:
     chest = slice_points(vt, edges, out["chest_height"]).numpy()
     out["chest_depth"] = float(chest[:, 1].max() - chest[:, 1].min()) if len(chest) else 0.25
     return out
+
+
+def made_to_measure_measurements(shape: BodyShape) -> dict[str, float]:
+    """`drafting_measurements` for a pattern drafted on the wearer's own body (`--size
+    made-to-measure`), with the crotch of `tryon.body.tape` (the lowest midline vertex the
+    pelvis carries): the lowest midline vertex that `drafting_measurements` takes is, on
+    fuller thighs, an inner thigh crossing the midline (6 cm low on a 165 cm, 68 kg woman,
+    18 cm on a 158 cm, 92 kg one), which drafted trousers that short in the leg."""
+    m = drafting_measurements(shape)
+    m["crotch_height"] = float(shape.vertices[find_landmarks(shape).crotch, 2])
+    return m

@@ -45,9 +45,9 @@ TAPES = ("height", "chest", "underbust", "waist", "waist_navel", "waist_height",
          "arm_length", "bicep", "wrist", "thigh", "knee", "crotch_height", "rise")
 WAIST_LEVELS = 16
 WAIST_BAND = 1.0 / 3.0  # the natural waist is searched from the navel this far up to the bust point
-MIDLINE = 0.012  # m: vertices this close to x = 0 lie on the body's midline
 BUST_BAND_START = 0.35  # the bust point is searched above this fraction of the spine02-spine01 span
 CROTCH_BAND = 0.025  # m: the crotch is the lowest pelvis vertex this close to the midline
+NOTCH_DROP = 0.5  # the jugular notch: this fraction of the way down from the neck joint to the clavicle joints
 THIGH_DROP = 0.006  # the thigh girth's level below the crotch, a fraction of stature (1 cm at 170 cm)
 
 
@@ -155,8 +155,6 @@ class Landmarks:
     navel: int
     crotch: int
     buttock: int
-    cervicale: int
-    suprasternale: int
     acromion_l: int
     acromion_r: int
     waist_level: float = 0.5      # natural waist: fraction of the way up its band (`_waist_band`)
@@ -166,13 +164,9 @@ class Landmarks:
         """The same vertices, and the searched levels within 5 % of their band / 5 mm."""
         if other is None:
             return False
-        idx = ("bust", "navel", "crotch", "buttock", "cervicale", "suprasternale", "acromion_l", "acromion_r")
+        idx = ("bust", "navel", "crotch", "buttock", "acromion_l", "acromion_r")
         return (all(getattr(self, k) == getattr(other, k) for k in idx) and abs(self.waist_level - other.waist_level) < 0.05
                 and abs(self.underbust_drop - other.underbust_drop) < 0.005)
-
-
-def _midline(v: np.ndarray, parts: MeshParts) -> np.ndarray:
-    return parts.torso & (np.abs(v[:, 0]) < MIDLINE)
 
 
 def _argbest(values: np.ndarray, sel: np.ndarray, largest: bool, what: str) -> int:
@@ -193,21 +187,13 @@ def find_landmarks(shape: BodyShape) -> Landmarks:
     # crotch: lowest midline torso vertex between the knees and the hip joints that the
     # pelvis carries (a heavy body's inner thighs may cross the midline lower down)
     knee, hip_joint = float(shape.head("lowerleg01.L")[2]), float(shape.head("pelvis.L")[2])
-    mid = _midline(v, parts)
     near_mid = parts.torso & (np.abs(v[:, 0]) < CROTCH_BAND)
     crotch = _argbest(z, near_mid & ~parts.leg & (z > knee) & (z < hip_joint), False, "crotch")
     navel = parts.navel
     # buttocks: most posterior (+y) torso vertex between the crotch and the navel
     buttock = _argbest(v[:, 1], parts.torso & (z > z[crotch]) & (z < z[navel]) & (np.abs(v[:, 0]) < 0.15), True,
                        "buttock protrusion")
-    # neck: the back midline at the neck joint (C7), the deepest front midline point (the
-    # jugular notch) between 4 cm below the clavicle joints and the neck joint
-    neck = shape.head("neck01")
-    clav = float(shape.head("clavicle.L")[2])
-    cervicale = _argbest(-np.abs(z - neck[2]), mid & (v[:, 1] > neck[1]) & (np.abs(z - neck[2]) < 0.03), True, "cervicale")
-    suprasternale = _argbest(v[:, 1], mid & (v[:, 1] < neck[1] - 0.02) & (z > clav - 0.04) & (z < neck[2]), True,
-                             "jugular notch")
-    lm = Landmarks(bust, navel, crotch, buttock, cervicale, suprasternale, _acromion(shape, v, "L"), _acromion(shape, v, "R"))
+    lm = Landmarks(bust, navel, crotch, buttock, _acromion(shape, v, "L"), _acromion(shape, v, "R"))
     # the narrowest levels, searched once: the tapes then follow them as the shape changes
     vt = shape.vertices.detach()
     lo, hi = _waist_band(v, lm)
@@ -320,12 +306,41 @@ def _thigh(v: torch.Tensor, shape: BodyShape, parts: MeshParts, lm: Landmarks) -
     return Section(sec.points[torch.from_numpy(side)], UP)
 
 
-def _neck(v: torch.Tensor, parts: MeshParts, lm: Landmarks) -> Section:
-    """The plane through C7 and the jugular notch also cuts the trapezius slopes, which a
-    tape does not follow out to the shoulders: the section is cut at the neck's own half
-    width, taken 2 cm above C7 where the neck is a clean ring (the tape touches the neck's
-    sides where the trapezius begins and bridges the slope behind)."""
-    c7, notch = (v[i].detach().numpy() for i in (lm.cervicale, lm.suprasternale))
+def neck_points(shape: BodyShape, v: torch.Tensor, parts: MeshParts | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The cervicale (C7: the back midline at the neck joint's height) and the suprasternale
+    (jugular notch: the front midline `NOTCH_DROP` of the way down from the neck joint to
+    the clavicle joints), [3] each. Both are surface points interpolated at x = 0, so they
+    move smoothly with the shape (a vertex picked as the deepest front point jumped between
+    neighbours from one fit round to the next and the neck girth with it, by up to 6 cm)."""
+    parts = mesh_parts(shape) if parts is None else parts
+    neck, clav = shape.head("neck01"), shape.head("clavicle.L")
+    vd = v.detach()
+    c7_z = float(neck[2])
+    notch_z = c7_z - NOTCH_DROP * (c7_z - float(clav[2]))
+    c7 = _midline_surface(vd, parts, c7_z, float(neck[1]), back=True)
+    notch = _midline_surface(vd, parts, notch_z, float(neck[1]), back=False)
+    return c7, notch
+
+
+def _midline_surface(v: torch.Tensor, parts: MeshParts, z: float, centre_y: float, back: bool) -> np.ndarray:
+    """Where the torso's surface at height z crosses the midline (x = 0), behind or in
+    front of `centre_y`: interpolated between the section points nearest x = 0 either side."""
+    ring = horizontal_section(v, parts.torso_edges, z).numpy()
+    ring = ring[((ring[:, 1] > centre_y) if back else (ring[:, 1] < centre_y)) & (np.abs(ring[:, 0]) < 0.05)]
+    left, right = ring[ring[:, 0] <= 0.0], ring[ring[:, 0] > 0.0]
+    if not len(left) or not len(right):
+        raise TryonError(f"cannot find the {'back' if back else 'front'} midline of the neck on this body mesh")
+    a, b = left[np.argmax(left[:, 0])], right[np.argmin(right[:, 0])]
+    y = a[1] + (0.0 - a[0]) * (b[1] - a[1]) / (b[0] - a[0])
+    return np.array([0.0, y, z])
+
+
+def _neck(v: torch.Tensor, shape: BodyShape, parts: MeshParts) -> Section:
+    """The plane through C7 and the jugular notch (`neck_points`) also cuts the trapezius
+    slopes, which a tape does not follow out to the shoulders: the section is cut at the
+    neck's own half width, taken 2 cm above C7 where the neck is a clean ring (the tape
+    touches the neck's sides where the trapezius begins and bridges the slope behind)."""
+    c7, notch = neck_points(shape, v, parts)
     along = c7 - notch
     normal = np.cross(along, [1.0, 0.0, 0.0])
     normal *= np.sign(normal[2]) or 1.0
@@ -357,7 +372,7 @@ def section(shape: BodyShape, name: str, v: torch.Tensor, lm: Landmarks) -> Sect
     if name == "hip":
         return _level(v, parts, float(z[lm.buttock]))
     if name == "neck":
-        return _neck(v, parts, lm)
+        return _neck(v, shape, parts)
     if name == "thigh":
         return _thigh(v, shape, parts, lm)
     if name == "bicep":

@@ -37,7 +37,7 @@ import torch
 from tqdm import tqdm
 
 from tryon.body.fit import BodyFit, Measurements, fit_body
-from tryon.body.measure import drafting_measurements
+from tryon.body.measure import drafting_measurements, made_to_measure_measurements
 from tryon.body.motion import morph_keyframes, smoothstep
 from tryon.body.pose import POSES, BodyPose, arm_pose, posed_body
 from tryon.errors import SimulationError, TryonError
@@ -488,7 +488,9 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
     fit_model = fit_body(fm_meas, prior=False) if fm_meas is not None else None
     timings["fit_model_s"] = time.perf_counter() - t1
     model_shape = (fit_model or person).shape
-    pm = drafting_measurements(person.shape)
+    # made to measure: drafted on the wearer's body with its tape crotch height
+    made_to_measure = fit_model is None and request.garment_obj is None
+    pm = (made_to_measure_measurements if made_to_measure else drafting_measurements)(person.shape)
     target = posed_body(person.shape, "a", pm["crotch_height"])
     t2 = time.perf_counter()
     if request.garment_obj is not None:  # already around the person: nothing to morph
@@ -497,7 +499,7 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
         start = target
         garment = garment_from_obj(request.garment_obj, target, clearance=request.thickness + 0.002)
     else:
-        m = drafting_measurements(model_shape)
+        m = pm if made_to_measure else drafting_measurements(model_shape)
         pattern = draft(request.garment, m, size=request.size.upper() if request.size else "made-to-measure",
                         meta={"gender": request.body.gender})
         if request.print_image is not None:  # a print that does not fit is refused before dressing
