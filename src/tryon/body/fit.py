@@ -55,15 +55,16 @@ PRIOR_HEIGHT_SCALE = 0.002
 # its sd below PRIOR_SD_REF (cm), so the volume does not settle where real people vary
 # least; hip and thigh, between which it went back and forth (a woman's thigh +1.5 cm
 # and hip -1.7 cm against the prior), are held to 0.5 cm each.
-PRIOR_SD_REF = 3.0
+PRIOR_SD_REF = 4.5
 PRIOR_SCALE_OF = {"thigh": 0.005, "hip": 0.005}
 # In the prior-guided fit the neck's controls may go to twice their targets and the fat
-# controls to 1.5 times (MakeHuman targets are linear offsets): Anny's heaviest bodies
-# (BMI 40+) otherwise ran out of places to carry their weight but the neck (+6 cm)
+# controls of the torso and thighs to 1.5 times (MakeHuman targets are linear offsets):
+# Anny's heaviest bodies (BMI 40+) otherwise ran out of places to carry their weight but
+# the neck (+6 cm). Not the arms: fuller upper arms overstretched T-shirt sleeves that
+# had fitted (a 168 cm, 85 kg woman's L and XL, 38-40 % of their area)
 LOCAL_RANGE = {"measure-neck-circ-incr": 2.0, "neck-scale-depth-incr": 2.0, "neck-scale-horiz-incr": 2.0,
                "l-upperleg-fat-incr": 1.5, "r-upperleg-fat-incr": 1.5, "measure-thigh-circ-incr": 1.5,
-               "measure-hips-circ-incr": 1.5, "buttocks-volume-incr": 1.5, "stomach-pregnant-incr": 1.5,
-               "l-upperarm-fat-incr": 1.5, "r-upperarm-fat-incr": 1.5}
+               "measure-hips-circ-incr": 1.5, "buttocks-volume-incr": 1.5, "stomach-pregnant-incr": 1.5}
 NEUTRAL_PULL = 0.5
 # the local changes the fit used before the anthropometric prior: the pinned (prior=False) fit
 LEGACY_LOCAL = LEGACY_LOCAL_CHANGES
