@@ -128,6 +128,22 @@ def test_a_given_girth_conditions_the_others():
         prior.predict("robot", 178, 30)
 
 
+def test_people_drawn_from_the_prior_spread_as_it_says():
+    from tryon.body.prior import default_prior
+
+    prior = default_prior()
+    rng = np.random.default_rng(5)
+    known = {"weight_kg": 80.0}
+    draws = [prior.sample("female", 165.0, 40.0, known, rng) for _ in range(3000)]
+    pred = prior.predict("female", 165.0, 40.0, known)
+    for name in ("chest_cm", "hip_cm", "thigh_cm", "neck_cm"):
+        values = np.array([d[name] for d in draws])
+        assert abs(np.median(values) - pred.mean[name]) < 0.1 * pred.sd[name]
+        assert 0.85 * pred.sd[name] < values.std() < 1.05 * pred.sd[name]  # a little less: draws clipped at 2.5 sigma
+        assert np.abs(np.log(values / pred.mean[name])).max() < 2.5 * pred.sd[name] / pred.mean[name] * 1.001
+    assert all(d["weight_kg"] == 80.0 for d in draws)
+
+
 def test_bench_summary_compares_bodies_with_the_regression():
     from tryon.bench.anthropometry import MEASURED, summarise
 

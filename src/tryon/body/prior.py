@@ -160,6 +160,31 @@ class AnthropometricPrior:
         return Prediction({n: float(value[i]) for i, n in enumerate(self.names)},
                           {n: float(value[i] * math.sqrt(max(var[i], 0.0))) for i, n in enumerate(self.names)})
 
+    def sample(self, gender: str, height_cm: float, age: float, known: dict[str, float], rng: np.random.Generator,
+               limit_sd: float = 2.5) -> dict[str, float]:
+        """One person drawn from the conditional Gaussian given stature, sex, age and the
+        `known` measurements (returned as given), every measurement within `limit_sd` of
+        its conditional spread (draws beyond are drawn again)."""
+        if gender not in self.coef:
+            raise TryonError(f"the prior knows {sorted(self.coef)} bodies, not {gender!r}")
+        mu, cov = self.coef[gender] @ _features(height_cm, age), self.cov[gender]
+        obs = [self.names.index(k) for k in known if k in self.names]
+        free = [i for i in range(len(self.names)) if i not in obs]
+        mean, c = mu[free], cov[np.ix_(free, free)]
+        if obs:
+            gain = cov[np.ix_(free, obs)] @ np.linalg.inv(cov[np.ix_(obs, obs)])
+            mean = mean + gain @ (np.log([known[self.names[i]] for i in obs]) - mu[obs])
+            c = c - gain @ cov[np.ix_(obs, free)]
+        chol, sd = np.linalg.cholesky(c + 1e-12 * np.eye(len(free))), np.sqrt(np.diag(c))
+        for _ in range(1000):  # rejection: every measurement within limit_sd of its own spread
+            draw = mean + chol @ rng.standard_normal(len(free))
+            if (np.abs(draw - mean) <= limit_sd * sd).all():
+                break
+        draw = np.clip(draw, mean - limit_sd * sd, mean + limit_sd * sd)
+        out = {self.names[i]: float(np.exp(v)) for i, v in zip(free, draw)}
+        out.update({self.names[i]: float(known[self.names[i]]) for i in obs})
+        return out
+
 
 @lru_cache(maxsize=1)
 def default_prior() -> AnthropometricPrior:

@@ -665,8 +665,10 @@ def build_parser() -> argparse.ArgumentParser:
     from tryon.cli.dataset import add_commands as add_dataset_commands
     from tryon.cli.inverse import add_commands as add_inverse_commands
     from tryon.cli.learned import add_commands as add_learned_commands
+    from tryon.cli.perceive import add_commands as add_perceive_commands
 
     add_inverse_commands(sub)
+    add_perceive_commands(sub)
     add_dataset_commands(sub)
     add_learned_commands(sub)
     return p

@@ -60,6 +60,24 @@ def _cmd_dataset_poses(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset_bodies(args: argparse.Namespace) -> int:
+    from tryon.dataset import BodyRanges
+    from tryon.dataset.photos import PhotoDatasetSpec, make_photo_dataset
+    from tryon.io.atomic import check_output_dir
+
+    spec = PhotoDatasetSpec(count=args.count, seed=args.seed, shard_size=args.shard_size,
+                            ranges=BodyRanges(genders=tuple(args.genders), bmi=tuple(args.bmi)))
+    spec.validate()
+    check_output_dir(args.out, force=args.force)
+    store, report = make_photo_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
+                                       force=args.force, progress=not args.quiet, limit=args.limit)
+    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
+                      "wall_s": round(report.wall_s, 1), "people_per_core_hour": round(report.samples_per_core_hour, 1)},
+                     indent=1))
+    print(f"dataset: {store.folder} (manifest.json, shards/)")
+    return 0
+
+
 def _cmd_dataset_pack(args: argparse.Namespace) -> int:
     from tryon.dataset.loading import load_drape_dataset
     from tryon.dataset.pack import pack_dataset
@@ -132,6 +150,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--shard-size", type=int, default=16, help="sequences per shard file")
     _generator_args(q)
     q.set_defaults(func=_cmd_dataset_poses)
+    b = kinds.add_parser("bodies", help="people of real-world shape photographed from several sides, with what the "
+                                        "person finder sees in each picture (for the body from photos)")
+    b.add_argument("--count", type=int, default=100, help="people (each photographed from 5 views)")
+    b.add_argument("--genders", nargs="+", default=["female", "male"], choices=["female", "male"])
+    b.add_argument("--bmi", type=float, nargs=2, default=[17.0, 40.0], metavar=("LOW", "HIGH"), help="BMI range (uniform)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--shard-size", type=int, default=64, help="people per shard file")
+    _generator_args(b)
+    b.set_defaults(func=_cmd_dataset_bodies)
     k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control; "
                                        "packing again into it adds only what changed")
     k.add_argument("dataset", help="dataset folder")

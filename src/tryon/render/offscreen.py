@@ -223,6 +223,15 @@ class Camera:
         m[3, 2] = -1.0
         return m
 
+    def project(self, points: Any, width: int, height: int) -> np.ndarray:
+        """Pixel coordinates [N,2] (x right, y down, pixel centres at +0.5) of world points
+        in a ``width`` x ``height`` image of this camera."""
+        right, up, forward = self.basis()
+        d = np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.eye
+        depth = np.maximum(d @ forward, 1e-9)
+        f = 0.5 * height / math.tan(math.radians(self.fov_deg) / 2.0)
+        return np.stack([0.5 * width + f * (d @ right) / depth, 0.5 * height - f * (d @ up) / depth], 1)
+
     def clip_planes(self, points: np.ndarray) -> tuple[float, float]:
         """``(near, far)``: the fixed values if set, else planes around ``points``."""
         _, _, forward = self.basis()

@@ -1,0 +1,1 @@
+"""Perception: people in photos (`person`: mask and keypoints by MediaPipe BlazePose)."""
