@@ -41,8 +41,8 @@ MIN_PERSON_FRACTION = 0.3  # of the photo's height
 MIN_VISIBILITY = 0.5
 MAX_TORSO_LEAN_DEG = 30.0
 MAX_LEG_LEAN_DEG = 25.0    # hip-to-ankle line from the vertical, each leg
-MIN_KNEE_DEG = 140.0      # hip-knee-ankle, 3D landmarks (180: straight; renders of straight legs: 145 up)
-MAX_STRIDE_M = 0.55       # ankle to ankle, 3D landmarks: beyond this the person is walking
+MIN_KNEE_DEG = 130.0      # hip-knee-ankle, 3D landmarks (180: straight; straight legs of renders read 139 up)
+MAX_STRIDE_M = 0.65       # ankle to ankle, 3D landmarks: beyond this the person is walking
 MAX_PEOPLE = 4
 MASK_LEVEL = 0.5
 
@@ -95,8 +95,9 @@ def _pose_model():
         try:
             import mediapipe as mp
         except ImportError as exc:
-            raise TryonError("finding people in photos needs mediapipe 0.10.14 "
-                             "(pip install mediapipe==0.10.14 protobuf==4.25.9)") from exc
+            raise TryonError(f"finding people in photos needs mediapipe 0.10.14 and OpenCV's system libraries "
+                             f"({exc}): pip install mediapipe==0.10.14 protobuf==4.25.9; apt-get install libgl1 "
+                             f"libglib2.0-0") from exc
         _POSE = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True,
                                        min_detection_confidence=0.5)
     return _POSE
