@@ -34,6 +34,19 @@ def _cmd_train_kdsm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train_body_photos(args: argparse.Namespace) -> int:
+    from tryon.learn.train_body_photos import BodyTrainConfig, train_body_photos
+
+    if args.epochs < 1 or args.batch < 1 or not args.lr > 0:
+        from tryon.errors import TryonError
+
+        raise TryonError("--epochs and --batch must be at least 1 and --lr positive")
+    path = train_body_photos(args.data, args.out, BodyTrainConfig(args.epochs, args.batch, args.lr, args.seed),
+                             progress=not args.quiet, force=args.force)
+    print(f"model: {path} (card: {path.parent}/MODEL_CARD.md)")
+    return 0
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register `tryon train ...` on the `tryon` parser."""
     t = sub.add_parser("train", help="train a learned model (checkpoints every epoch, resumes)")
@@ -49,6 +62,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
     p.set_defaults(func=_cmd_train_drape)
+    b = kinds.add_parser("body-photos", help="the body from photos: the multi-view regression on a photo dataset "
+                                             "(tryon dataset bodies)")
+    b.add_argument("--data", required=True, help="photo dataset folder")
+    b.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, MODEL_CARD.md, checkpoint.pt")
+    b.add_argument("--epochs", type=int, default=40)
+    b.add_argument("--batch", type=int, default=32)
+    b.add_argument("--lr", type=float, default=1e-3)
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--quiet", action="store_true")
+    b.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    b.set_defaults(func=_cmd_train_body_photos)
     k = kinds.add_parser("kdsm", help="pose-dependent cloth: the pixel network of one method on a pose dataset "
                                       "(tryon dataset poses)")
     k.add_argument("--data", required=True, help="pose dataset folder")
