@@ -82,8 +82,10 @@ def nearest_size(garment: str, girths: dict, gender: str) -> tuple[str, str | No
 
 
 def fitted_girths(fit) -> dict:
-    """The chest, waist and hip (cm) a body fit achieved, as `nearest_size` takes them."""
-    return {k: float(fit.achieved[k]) for k in ("chest_cm", "waist_cm", "hip_cm")}
+    """The chest, waist, hip and (when the fit measured it) waist at the navel (cm) a body
+    fit achieved, as `nearest_size` takes them."""
+    keys = ("chest_cm", "waist_cm", "hip_cm", "waist_navel_cm")
+    return {k: float(fit.achieved[k]) for k in keys if k in fit.achieved}
 
 
 def body_girths(body: Body) -> dict:
