@@ -119,3 +119,21 @@ def test_odd_modes_become_rgb(tmp_path):
     deep.save(tmp_path / "deep.png")
     out = load_photo(tmp_path / "deep.png")
     assert out.shape == (80, 100, 3) and out.dtype == np.uint8 and out.max() == 255
+
+
+@pytest.mark.anny
+def test_person_command_writes_overlays_and_names_the_refused(standing_render, tmp_path, capsys):
+    import json
+
+    from tryon.cli import main
+
+    Image.fromarray(standing_render[0]).save(tmp_path / "front.png")
+    Image.fromarray(_canvas(640, 480)).save(tmp_path / "wall.png")
+    code = main(["person", str(tmp_path / "front.png"), str(tmp_path / "wall.png"), "--out", str(tmp_path / "out")])
+    assert code == 1  # one photo refused
+    assert "wall.png: no person found" in capsys.readouterr().out
+    people = json.loads((tmp_path / "out" / "people.json").read_text())
+    assert len(people["people"]) == 1 and len(people["refused"]) == 1
+    assert (tmp_path / "out" / people["people"][0]["picture"]).is_file()
+    assert set(people["people"][0]["keypoints_px"]) >= {"nose", "left_heel", "right_foot_index"}
+    assert main(["person", str(tmp_path / "wall.png"), "--out", str(tmp_path / "out2")]) == 2  # nothing usable
