@@ -123,8 +123,8 @@ def _loss(out: dict, b: dict) -> tuple[torch.Tensor, dict[str, float]]:
     on = b["present"][..., None]
     reproj = (((proj - b["joints_2d"]) ** 2).sum(-1) * on).sum() / (on.sum() * proj.shape[2]).clamp(min=1.0)
     total = nll + 0.5 * mse + 0.1 * shape + 10.0 * joints + 10.0 * reproj
-    return total, {"nll": float(nll), "mse": float(mse), "shape": float(shape), "joints": float(joints),
-                   "reproj": float(reproj)}
+    parts = {"nll": nll, "mse": mse, "shape": shape, "joints": joints, "reproj": reproj}
+    return total, {k: float(v.detach()) for k, v in parts.items()}
 
 
 def view_subsets(t: PhotoTensors) -> dict[int, list[int]]:
