@@ -47,6 +47,16 @@ def _cmd_train_body_photos(args: argparse.Namespace) -> int:
     return 0
 
 
+def _training_options(p: argparse.ArgumentParser, epochs: int, batch: int, lr: float) -> None:
+    """The options every `tryon train` kind with a model folder takes."""
+    p.add_argument("--epochs", type=int, default=epochs)
+    p.add_argument("--batch", type=int, default=batch)
+    p.add_argument("--lr", type=float, default=lr)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register `tryon train ...` on the `tryon` parser."""
     t = sub.add_parser("train", help="train a learned model (checkpoints every epoch, resumes)")
@@ -55,23 +65,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", required=True, nargs="+", metavar="DIR",
                    help="drape dataset folder(s): a simulated set, then any refined sets (tryon dataset refine) to add")
     p.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, checkpoint.pt")
-    p.add_argument("--epochs", type=int, default=60)
-    p.add_argument("--batch", type=int, default=4)
-    p.add_argument("--lr", type=float, default=3e-3)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--quiet", action="store_true")
-    p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    _training_options(p, epochs=60, batch=4, lr=3e-3)
     p.set_defaults(func=_cmd_train_drape)
     b = kinds.add_parser("body-photos", help="the body from photos: the multi-view regression on a photo dataset "
                                              "(tryon dataset bodies)")
     b.add_argument("--data", required=True, help="photo dataset folder")
     b.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, MODEL_CARD.md, checkpoint.pt")
-    b.add_argument("--epochs", type=int, default=40)
-    b.add_argument("--batch", type=int, default=32)
-    b.add_argument("--lr", type=float, default=1e-3)
-    b.add_argument("--seed", type=int, default=0)
-    b.add_argument("--quiet", action="store_true")
-    b.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
+    _training_options(b, epochs=40, batch=32, lr=1e-3)
     b.set_defaults(func=_cmd_train_body_photos)
     k = kinds.add_parser("kdsm", help="pose-dependent cloth: the pixel network of one method on a pose dataset "
                                       "(tryon dataset poses)")
