@@ -4,13 +4,12 @@ record, the JSON written atomically, and torch on one thread for the run."""
 from __future__ import annotations
 
 import platform
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import torch
 
 from tryon.io.atomic import atomic_write
 from tryon.io.json_safe import dumps_json
+from tryon.io.threads import one_torch_thread  # noqa: F401  (the benches' import of it)
 
 
 def write_records(json_path: str, records: list[dict], **extra) -> None:
@@ -21,15 +20,3 @@ def write_records(json_path: str, records: list[dict], **extra) -> None:
         r.update(host)
     with atomic_write(json_path) as fh:
         fh.write(dumps_json(records, indent=2))
-
-
-@contextmanager
-def one_torch_thread() -> Iterator[None]:
-    """torch on one thread inside the block (many small tensor operations: a thread pool
-    only adds contention), its previous thread count restored after."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)

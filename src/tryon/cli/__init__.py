@@ -92,13 +92,36 @@ def _measurements(args: argparse.Namespace):
                         chest_cm=args.chest_cm, waist_cm=args.waist_cm, hip_cm=args.hip_cm, **extra)
 
 
+def _person(args: argparse.Namespace):
+    """(the body's numbers, the fitted body or None): from --images when given (the body
+    from photos), else the typed measurements (fitted later)."""
+    if not getattr(args, "images", None):
+        return _measurements(args), None
+    from tryon.body.fit import TAPE_RANGE_CM
+    from tryon.learn.body_from_photos import body_from_image_files
+
+    typed = [f"--{k.replace('_', '-')}-cm" for k in ("chest", "waist", "hip", *TAPE_RANGE_CM)
+             if getattr(args, f"{k}_cm", None) is not None]
+    if typed or args.bmi is not None:
+        raise TryonError(f"--images reads the body off the photos; leave out {', '.join(typed or ['--bmi'])} "
+                         f"(give --height-cm, --gender and optionally --weight-kg)")
+    pb = body_from_image_files(args.images, args.height_cm, args.gender, args.weight_kg, args.age)
+    for note in pb.notes:
+        print(f"note: {note}")
+    m = pb.measurements()
+    print(f"body from {len(args.images)} photo(s): {m['weight_kg']:.1f} kg, chest {m['chest_cm']:.1f}, waist "
+          f"{m['waist_cm']:.1f}, hip {m['hip_cm']:.1f} cm ({pb.timings['total_s']:.1f} s)")
+    return pb.request(args.age), pb.fit
+
+
 def _cmd_drape(args: argparse.Namespace) -> int:
     from tryon.drape import DrapeRequest, drape
     from tryon.drape.outputs import write_outputs
 
     size = None if args.size.lower() in ("mtm", "made-to-measure") else args.size
     out = check_output_dir(args.out, force=args.force)
-    req = DrapeRequest(_measurements(args), garment=args.garment, size=size, fabric=args.fabric,
+    body, person = _person(args)
+    req = DrapeRequest(body, garment=args.garment, size=size, fabric=args.fabric,
                        edge_length=args.edge_length, dt=args.dt, max_settle_time=args.settle_time,
                        print_image=args.print_image, print_width_cm=args.print_width_cm, allow_tight=args.allow_tight,
                        time_limit_s=args.time_limit)
@@ -110,11 +133,11 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     if args.method == "learned":
         from tryon.learn.drape import learned_drape
 
-        result = learned_drape(req, args.model, refine=args.refine)
+        result = learned_drape(req, args.model, refine=args.refine, person=person)
     elif args.model or args.refine:
         raise TryonError("--model and --refine belong to --method learned")
     else:
-        result = drape(req, progress=not args.quiet)
+        result = drape(req, progress=not args.quiet, person=person)
     rep = write_outputs(result, out, force=args.force)
     a, b = rep["body"]["achieved"], rep["body"]["asked"]
     print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
@@ -147,9 +170,10 @@ def _cmd_size(args: argparse.Namespace) -> int:
         raise TryonError("--workers and --ray-address drape the sizes in parallel with --method simulate; a learned "
                          "drape takes seconds")
     out = check_output_dir(args.out, force=args.force)
-    rec, results = size_recommendation(_measurements(args), garment=args.garment, fabric=args.fabric, method=args.method,
+    body, person = _person(args)
+    rec, results = size_recommendation(body, garment=args.garment, fabric=args.fabric, method=args.method,
                                        refine=not args.no_refine, model_path=args.model, sizes=args.sizes,
-                                       workers=args.workers, ray_address=args.ray_address)
+                                       workers=args.workers, ray_address=args.ray_address, person=person)
     write_size_outputs(rec, results, out, force=args.force)
     print(f"recommended size: {rec['recommended']} ({rec['method']}, {rec['wall_s']:.1f} s)")
     for line in rec["reasons"]:
@@ -364,10 +388,16 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
 
 
 BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm",
-           "size", "anthropometry"]
+           "size", "anthropometry", "body"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "body":
+        from tryon.bench.body import run_body_bench
+
+        run_body_bench(args.json, data=args.data, model=args.model, people=args.people or (4 if args.quick else 60),
+                       drapes=args.drapes)
+        return 0
     if args.what == "anthropometry":
         from tryon.bench.anthropometry import run_anthropometry_bench
 
@@ -502,6 +532,12 @@ def _body_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wrist-cm", type=float, help="wrist girth (optional)")
 
 
+def _images_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--images", nargs="+", metavar="IMG",
+                   help="1-4 photos of the person, head to feet (the body from photos: give --height-cm, --gender "
+                        "and optionally --weight-kg; see tryon body from-images)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="tryon", description="Simulation-based virtual try-on.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -525,6 +561,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("drape", help="a garment of a size and fabric on a body from measurements")
     _body_args(d)
+    _images_arg(d)
     d.add_argument("--garment", default="tshirt",
                    help="tshirt, longsleeve, skirt, trousers, dress, or a garment .obj around the body (vt: material coords in m)")
     d.add_argument("--size", default="M", help="XS, S, M, L, XL, XXL or made-to-measure")
@@ -552,6 +589,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     z = sub.add_parser("size", help="recommend a size: drape every size, score ease, strain and pressure per region")
     _body_args(z)
+    _images_arg(z)
     z.add_argument("--garment", default="tshirt", help="a garment with a learned model (tshirt)")
     z.add_argument("--fabric", default="gray-interlock", help="fabric preset or .json")
     z.add_argument("--sizes", nargs="+", help="sizes to compare (default: every size the model knows)")
@@ -640,7 +678,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged (learned: default "
-                                  "the shipped model's held-out drapes); kdsm: the pose dataset")
+                                  "the shipped model's held-out drapes); kdsm: the pose dataset; body: the photo "
+                                  "dataset (default data/bodies-v1)")
     b.add_argument("--model", help="learned, size: a model file instead of the shipped one")
     b.add_argument("--per-split", type=int, metavar="N",
                    help="learned: judge at most N drapes of each held-out split, evenly spread (refinement takes seconds each)")
@@ -657,7 +696,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fidelity, fit-fabric: a folder of ARCSim runs (*.npz, ground truth included; default: the copy "
                         "in the package)")
     b.add_argument("--people", type=int, metavar="N",
-                   help="anthropometry: held-out ANSUR II people per sex, spread over the BMI range (default 30)")
+                   help="anthropometry: held-out ANSUR II people per sex, spread over the BMI range (default 30); "
+                        "body: test people of the photo dataset (default 60)")
+    b.add_argument("--drapes", type=int, default=0, metavar="N",
+                   help="body: also drape a T-shirt M on N test people's bodies from four renders and on their true "
+                        "bodies (a minute or two each; pictures next to --json)")
     b.add_argument("--matrix", action="store_true",
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
     b.set_defaults(func=_cmd_bench)

@@ -71,7 +71,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                                              "(tryon dataset bodies)")
     b.add_argument("--data", required=True, help="photo dataset folder")
     b.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, MODEL_CARD.md, checkpoint.pt")
-    _training_options(b, epochs=40, batch=32, lr=1e-3)
+    _training_options(b, epochs=60, batch=16, lr=1e-3)
     b.set_defaults(func=_cmd_train_body_photos)
     k = kinds.add_parser("kdsm", help="pose-dependent cloth: the pixel network of one method on a pose dataset "
                                       "(tryon dataset poses)")

@@ -1,9 +1,9 @@
-"""Commands that look at photos: `tryon person` (the person finder on your own pictures)."""
+"""Commands that look at photos: `tryon person` (the person finder on your own pictures)
+and `tryon body from-images` (the body from one to four photos)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 
@@ -42,6 +42,30 @@ def _cmd_person(args: argparse.Namespace) -> int:
     return 1 if refused else 0
 
 
+def _cmd_body_from_images(args: argparse.Namespace) -> int:
+    from tryon.io.atomic import atomic_output_dir, check_output_dir
+    from tryon.learn.body_from_photos import body_from_image_files, write_photo_body
+
+    check_output_dir(args.out, force=args.force)
+    pb = body_from_image_files(args.images, args.height_cm, args.gender, args.weight_kg, args.age, args.model)
+    with atomic_output_dir(args.out, force=args.force) as tmp:
+        report = write_photo_body(pb, tmp)
+    for note in pb.notes:
+        print(f"note: {note}")
+    m = report["measurements"]
+    weight = f"{m['weight_kg']:.1f} kg" + ("" if m["weight_given"] else f" (read off the photos, +- {m['weight_kg_sd']:.1f})")
+    print(f"{len(args.images)} photo(s) -> {args.height_cm:g} cm, {weight}: chest {m['chest_cm']:.1f} +- "
+          f"{m['chest_cm_sd']:.1f}, waist {m['waist_cm']:.1f} +- {m['waist_cm_sd']:.1f}, hip {m['hip_cm']:.1f} +- "
+          f"{m['hip_cm_sd']:.1f} cm ({pb.timings['total_s']:.2f} s) -> {args.out}")
+    return 0
+
+
+def add_photo_body_args(p: argparse.ArgumentParser, required: bool) -> None:
+    """The person's own numbers that go with photos (stature fixes the scale)."""
+    p.add_argument("--height-cm", type=float, required=required, help="stature in cm (fixes the photos' scale)")
+    p.add_argument("--gender", choices=["female", "male"], required=required)
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("person", help="find the person in photos (mask and keypoints, BlazePose): an overlay per "
                        "photo, or the reason it cannot be used")
@@ -49,3 +73,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder for the overlays and people.json")
     p.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
     p.set_defaults(func=_cmd_person)
+    b = sub.add_parser("body", help="bodies from photos (tryon body from-images)")
+    kinds = b.add_subparsers(dest="kind", required=True)
+    f = kinds.add_parser("from-images", help="the body from 1-4 photos of one whole standing person, with stature "
+                                             "and gender: body.obj, measurements.json, an overlay per photo")
+    f.add_argument("images", nargs="+", metavar="IMG", help="photos of the same person from any sides (front, side, "
+                                                             "back), head to feet")
+    add_photo_body_args(f, required=True)
+    f.add_argument("--weight-kg", type=float, help="weight in kg (optional: read off the photos when not given)")
+    f.add_argument("--age", type=float, default=30.0)
+    f.add_argument("--model", help="a body-from-photos model.npz (default: the shipped one)")
+    f.add_argument("--out", required=True, help="folder for body.obj, measurements.json, overlays, report.json")
+    f.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
+    f.set_defaults(func=_cmd_body_from_images)

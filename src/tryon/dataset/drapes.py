@@ -109,7 +109,8 @@ class DrapeDatasetSpec:
 def split_of(manifest: Manifest, body: int, bmi: float) -> str:
     """The split of a body, fixed by the manifest before any training."""
     rule = manifest.split
-    if bmi >= rule["extrapolation_bmi"]:
+    limit = rule.get("extrapolation_bmi")  # None: no extrapolation split
+    if limit is not None and bmi >= limit:
         return "extrapolation"
     r = np.random.default_rng([manifest.seed, body, 7]).random()
     return "train" if r < rule["train"] else "val" if r < rule["train"] + rule["val"] else "test"

@@ -50,7 +50,7 @@ GENERATOR_VERSION = 1
 VIEWS = ("front", "back", "left", "right", "random")
 # camera azimuth from the front towards +X; "left": the camera sees the body's left side (+X)
 VIEW_AZIMUTH = {"front": 0.0, "back": 180.0, "left": 90.0, "right": -90.0}
-CROP = 128
+CROP = 128  # tryon.perceive.person.CROP: what the regression reads
 TRUE_CROP = 64  # the rendered silhouette, kept coarser (to judge the finder's masks)
 IMAGE_WH = (480, 640)
 # what the prior draws and the fit is asked to meet (the rest follows Anny's shape)
@@ -94,7 +94,7 @@ class PhotoDatasetSpec:
                 "joints": list(JOINTS), "tapes": list(TAPES), "ranges": self.ranges.to_dict(),
                 "finder": "mediapipe 0.10.14 BlazePose full (tryon.perceive.person)"}
         split = {"rule": "by person: train / val / test drawn per person from the seed", "train": self.train_fraction,
-                 "val": self.val_fraction, "extrapolation_bmi": math.inf}
+                 "val": self.val_fraction, "extrapolation_bmi": None}  # None: as JSON writes it back
         return Manifest(KIND, GENERATOR_VERSION, software_version, self.seed, self.count, self.shard_size, spec, split,
                         created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
 
@@ -175,26 +175,9 @@ def _camera(body_v: np.ndarray, azimuth_deg: float, rng: np.random.Generator):
     return Camera(eye=eye, target=target, fov_deg=fov)
 
 
-def crop_box(box: tuple[int, int, int, int], margin: float = 0.1) -> tuple[float, float, float]:
-    """(x0, y0, side) of the square around a person's box, `margin` of its height added."""
-    x0, y0, x1, y1 = box
-    side = max(x1 - x0, y1 - y0) * (1 + 2 * margin)
-    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
-    return cx - side / 2, cy - side / 2, side
-
-
-def crop_mask(mask: np.ndarray, crop: tuple[float, float, float], size: int = CROP) -> np.ndarray:
-    """The mask [H,W] (0-1) inside the square crop, resampled to size x size."""
-    from PIL import Image
-
-    x0, y0, side = crop
-    img = Image.fromarray((np.clip(mask, 0, 1) * 255).astype(np.uint8))
-    out = img.transform((size, size), Image.EXTENT, (x0, y0, x0 + side, y0 + side), Image.BILINEAR, fillcolor=0)
-    return np.asarray(out, dtype=np.float32) / 255.0
-
-
-def _view(body, colours, azimuth: float, rng: np.random.Generator, joints: np.ndarray) -> dict[str, np.ndarray]:
-    from tryon.perceive.person import detect_person, refusal
+def render_photo(body, colours: np.ndarray, azimuth: float, rng: np.random.Generator):
+    """(the photo [H,W,3] uint8, its camera, the background's pixels [H,W] bool) of the
+    posed, painted body from `azimuth`, with a random camera and wall."""
     from tryon.render.offscreen import RenderMesh, render_meshes
 
     w, h = IMAGE_WH
@@ -203,7 +186,25 @@ def _view(body, colours, azimuth: float, rng: np.random.Generator, joints: np.nd
     fg = render_meshes([RenderMesh(body.vertices, body.faces, vertex_colors=colours)], w, h, cam,
                        background=(1.0, 0.0, 1.0))
     key = (fg[..., 0] > 250) & (fg[..., 1] < 5) & (fg[..., 2] > 250)
-    photo = np.where(key[..., None], bg, fg)
+    return np.where(key[..., None], bg, fg), cam, key
+
+
+def photograph(shape, views: tuple[str, ...] = ("front", "left"), seed: int = 0) -> list[np.ndarray]:
+    """Photos of a body as the photo datasets take them (arms 15-50 degrees out, painted
+    tight clothes, a random camera per view): for tests, pictures and benches."""
+    rng = np.random.default_rng(seed)
+    R, _ = clear_thighs(shape, leg_spread(shape, arm_pose(shape, rng.uniform(15.0, 50.0)), rng.uniform(0.0, 5.0)))
+    body = posed_body(shape, R)
+    colours = _clothes_colours(body, rng)
+    return [render_photo(body, colours, rng.uniform(0.0, 360.0) if v == "random" else
+                         VIEW_AZIMUTH[v] + rng.uniform(-10.0, 10.0), rng)[0] for v in views]
+
+
+def _view(body, colours, azimuth: float, rng: np.random.Generator, joints: np.ndarray) -> dict[str, np.ndarray]:
+    from tryon.perceive.person import crop_box, crop_mask, detect_person, refusal
+
+    w, h = IMAGE_WH
+    photo, cam, key = render_photo(body, colours, azimuth, rng)
     out = {"azimuth_deg": np.float32(azimuth), "fov_deg": np.float32(cam.fov_deg),
            "eye": cam.eye.astype(np.float32), "target": cam.target.astype(np.float32)}
     true_mask = (~key).astype(np.float32)

@@ -182,9 +182,10 @@ def undrapeable(size: str, reason: str) -> dict:
 def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str = "gray-interlock",
                         method: str = "learned", refine: bool = True, model_path: str | None = None,
                         sizes: list[str] | None = None, workers: int = 1,
-                        ray_address: str | None = None) -> tuple[dict, list[DrapeResult | str]]:
+                        ray_address: str | None = None, person=None) -> tuple[dict, list[DrapeResult | str]]:
     """(the recommendation as a dict, the drape of every size). `method="simulate"` drapes
-    the sizes as Ray tasks when `workers` > 1 or `ray_address` names a cluster."""
+    the sizes as Ray tasks when `workers` > 1 or `ray_address` names a cluster. `person`:
+    `fit_body(body)` when the caller has it already (a body from photos)."""
     from tryon.learn.model import DrapeModel, load_shipped
 
     if method not in ("learned", "simulate"):
@@ -197,7 +198,7 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
         model = DrapeModel.load(model_path) if model_path else load_shipped(garment)
     sizes = sorted({s.upper() for s in (sizes or model.sizes)}, key=lambda s: SIZES.index(s) if s in SIZES else 99)
     DrapeRequest(body, garment=garment, size=sizes[0], fabric=fabric).validate()
-    person = fit_body(body)
+    person = person or fit_body(body)
     fit_s = time.perf_counter() - t0
     # a size far too small is judged by how it strains, not refused
     requests = [DrapeRequest(body, garment=garment, size=size, fabric=fabric, allow_tight=True) for size in sizes]

@@ -21,8 +21,9 @@ from tryon.dataset.photos import KIND
 from tryon.dataset.store import DatasetError, Manifest, ShardStore
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
-from tryon.learn.body_photos import (BodyFromViews, HeightWeightBaseline, RegressorConfig, body_frame_joints, condition,
-                                     load_model, project, save_model, unpack_masks)
+from tryon.learn.body_photos import (WEIGHT_TAPES, BodyFromViews, HeightWeightBaseline, RegressorConfig,
+                                     WeightModel, body_frame_joints, condition, load_model, project, save_model,
+                                     silhouette_profile, unpack_masks)
 
 CHECKPOINT = "checkpoint.pt"
 GIRTHS = ("chest", "waist_navel", "hip")
@@ -32,10 +33,11 @@ VIEW_ORDER = ("front", "left", "back", "right", "random")
 
 @dataclass
 class BodyTrainConfig:
-    epochs: int = 40
-    batch: int = 32
+    epochs: int = 60
+    batch: int = 16
     lr: float = 1e-3
     seed: int = 0
+    no_weight_fraction: float = 0.25  # training people seen without their weight (a shopper may not give it)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -47,11 +49,12 @@ class PhotoTensors:
 
     masks: np.ndarray       # [N,V,1,C,C] uint8
     keypoints: np.ndarray   # [N,V,33,3] float32
+    profile: np.ndarray     # [N,V,P] float32 (silhouette_profile)
     present: np.ndarray     # [N,V] float32
-    cond: np.ndarray        # [N,3]
     height: np.ndarray
     weight: np.ndarray
     gender: np.ndarray
+    age: np.ndarray
     tapes: np.ndarray       # [N,M] cm
     shape: np.ndarray       # [N,S]
     joints: np.ndarray      # [N,J,3] body frame
@@ -62,6 +65,29 @@ class PhotoTensors:
 
     def rows(self, split: str) -> np.ndarray:
         return np.nonzero(self.split == split)[0]
+
+    def girths(self, rows: np.ndarray) -> np.ndarray:
+        return self.tapes[rows][:, [self.tape_names.index(n) for n in WEIGHT_TAPES]]
+
+
+@dataclass
+class Standards:
+    """What the targets are measured against, fitted on the training people only."""
+
+    baseline: HeightWeightBaseline
+    weight: WeightModel
+    shape_mean: np.ndarray
+    shape_sd: np.ndarray
+
+    @classmethod
+    def fit(cls, t: PhotoTensors, train: np.ndarray) -> "Standards":
+        return cls(HeightWeightBaseline.fit(t.height[train], t.weight[train], t.gender[train], t.tapes[train]),
+                   WeightModel.fit(t.height[train], t.gender[train], t.weight[train], t.girths(train)),
+                   t.shape[train].mean(0), t.shape[train].std(0) + 1e-3)
+
+    def weights(self, t: PhotoTensors, idx: np.ndarray, given: np.ndarray) -> np.ndarray:
+        """The weight the network is told: the person's own, or the guess from stature."""
+        return np.where(given, t.weight[idx], self.weight.from_height(t.height[idx], t.gender[idx]))
 
 
 def load_photo_tensors(folder: str | Path) -> tuple[Manifest, PhotoTensors]:
@@ -78,10 +104,9 @@ def load_photo_tensors(folder: str | Path) -> tuple[Manifest, PhotoTensors]:
     masks = (unpack_masks(a["view_mask_bits"][ok], crop) > 0.5).astype(np.uint8)
     kp = np.concatenate([a["view_keypoints"][ok].astype(np.float32),
                          a["view_visibility"][ok].astype(np.float32)[..., None]], -1)
-    t = PhotoTensors(masks=masks, keypoints=kp, present=a["view_found"][ok].astype(np.float32),
-                     cond=condition(a["height_cm"][ok], a["weight_kg"][ok], a["gender"][ok]),
+    t = PhotoTensors(masks=masks, keypoints=kp, profile=silhouette_profile(masks[:, :, 0], kp), present=a["view_found"][ok].astype(np.float32),
                      height=a["height_cm"][ok].astype(np.float64), weight=a["weight_kg"][ok].astype(np.float64),
-                     gender=a["gender"][ok].astype(np.float64), tapes=a["tapes_cm"][ok].astype(np.float64),
+                     gender=a["gender"][ok].astype(np.float64), age=a["age"][ok].astype(np.float64), tapes=a["tapes_cm"][ok].astype(np.float64),
                      shape=a["shape_params"][ok].astype(np.float32),
                      joints=body_frame_joints(a["joints_3d"][ok].astype(np.float64), a["height_cm"][ok], spec["joints"]),
                      joints_2d=a["view_joints_2d"][ok].astype(np.float32), split=np.asarray(a["split"][ok]).astype(str),
@@ -89,26 +114,32 @@ def load_photo_tensors(folder: str | Path) -> tuple[Manifest, PhotoTensors]:
     return manifest, t
 
 
-def _batch(t: PhotoTensors, idx: np.ndarray, baseline: HeightWeightBaseline, shape_mean, shape_sd,
-           view_sets: list[list[int]]) -> dict[str, torch.Tensor]:
-    """Tensors of people `idx`, each seen through its own list of views (in that order)."""
+def _batch(t: PhotoTensors, idx: np.ndarray, std: Standards, view_sets: list[list[int]],
+           weight_given: np.ndarray) -> dict[str, torch.Tensor]:
+    """Tensors of people `idx`, each seen through its own list of views (in that order),
+    told their weight where `weight_given`."""
     V = max(len(v) for v in view_sets)
     B = len(idx)
     C = t.masks.shape[-1]
     masks = np.zeros((B, V, 1, C, C), np.float32)
     kp = np.zeros((B, V, 33, 3), np.float32)
+    prof = np.zeros((B, V, t.profile.shape[-1]), np.float32)
     present = np.zeros((B, V), np.float32)
     j2d = np.zeros((B, V, t.joints_2d.shape[2], 2), np.float32)
     for b, (r, views) in enumerate(zip(idx, view_sets)):
         for k, v in enumerate(views):
             masks[b, k] = t.masks[r, v]
             kp[b, k] = t.keypoints[r, v]
+            prof[b, k] = t.profile[r, v]
             present[b, k] = t.present[r, v]
             j2d[b, k] = t.joints_2d[r, v]
-    resid = baseline.residual(t.height[idx], t.weight[idx], t.gender[idx], t.tapes[idx])
-    return {"mask": torch.from_numpy(masks), "keypoints": torch.from_numpy(kp), "present": torch.from_numpy(present),
-            "cond": torch.from_numpy(t.cond[idx]), "residual": torch.from_numpy(resid.astype(np.float32)),
-            "shape": torch.from_numpy(((t.shape[idx] - shape_mean) / shape_sd).astype(np.float32)),
+    w = std.weights(t, idx, weight_given)
+    resid = std.baseline.residual(t.height[idx], w, t.gender[idx], t.tapes[idx])
+    return {"mask": torch.from_numpy(masks), "keypoints": torch.from_numpy(kp), "profile": torch.from_numpy(prof),
+            "present": torch.from_numpy(present),
+            "cond": torch.from_numpy(condition(t.height[idx], w, t.gender[idx], weight_given)),
+            "residual": torch.from_numpy(resid.astype(np.float32)),
+            "shape": torch.from_numpy(((t.shape[idx] - std.shape_mean) / std.shape_sd).astype(np.float32)),
             "joints": torch.from_numpy(t.joints[idx]), "joints_2d": torch.from_numpy(j2d)}
 
 
@@ -133,25 +164,33 @@ def view_subsets(t: PhotoTensors) -> dict[int, list[int]]:
     return {n: order[:n] for n in (1, 2, 4) if n <= len(order)}
 
 
-def evaluate(net: BodyFromViews, t: PhotoTensors, rows: np.ndarray, baseline: HeightWeightBaseline,
-             shape_mean, shape_sd) -> dict:
-    """Mean relative error (%) of every tape per number of views, and of the baseline."""
+def predict(net: BodyFromViews, t: PhotoTensors, rows: np.ndarray, std: Standards, views: list[int],
+            weight_given: bool) -> np.ndarray:
+    """Every tape (cm) of people `rows` seen through `views`."""
+    preds = []
+    with torch.no_grad():
+        for s in range(0, len(rows), 64):
+            idx = rows[s:s + 64]
+            given = np.full(len(idx), weight_given)
+            b = _batch(t, idx, std, [views] * len(idx), given)
+            o = net(b["mask"], b["keypoints"], b["profile"], b["present"], b["cond"])
+            preds.append(std.baseline.measurements(t.height[idx], std.weights(t, idx, given), t.gender[idx],
+                                                   o["residual"].numpy().astype(np.float64)))
+    return np.concatenate(preds)
+
+
+def evaluate(net: BodyFromViews, t: PhotoTensors, rows: np.ndarray, std: Standards) -> dict:
+    """Mean relative error (%) of every tape per number of views, with and without the
+    weight, and of the baseline from stature, weight and gender."""
     net.eval()
     out: dict = {"people": int(len(rows))}
     truth = t.tapes[rows]
-    base = baseline.measurements(t.height[rows], t.weight[rows], t.gender[rows],
-                                 np.zeros_like(truth))
-    out["height-weight"] = _errors(base, truth, t.tape_names)
+    out["height-weight"] = _errors(std.baseline.measurements(t.height[rows], t.weight[rows], t.gender[rows],
+                                                             np.zeros_like(truth)), truth, t.tape_names)
     for n, views in view_subsets(t).items():
-        preds = []
-        with torch.no_grad():
-            for s in range(0, len(rows), 64):
-                idx = rows[s:s + 64]
-                b = _batch(t, idx, baseline, shape_mean, shape_sd, [views] * len(idx))
-                o = net(b["mask"], b["keypoints"], b["present"], b["cond"])
-                preds.append(baseline.measurements(t.height[idx], t.weight[idx], t.gender[idx],
-                                                   o["residual"].numpy().astype(np.float64)))
-        out[f"views-{n}"] = _errors(np.concatenate(preds), truth, t.tape_names)
+        out[f"views-{n}"] = _errors(predict(net, t, rows, std, views, True), truth, t.tape_names)
+    for n, views in view_subsets(t).items():
+        out[f"views-{n}-no-weight"] = _errors(predict(net, t, rows, std, views, False), truth, t.tape_names)
     return out
 
 
@@ -176,12 +215,12 @@ def train_body_photos(data: str | Path, out: str | Path, config: BodyTrainConfig
         raise TryonError(f"{data} has {len(train)} training people; make more with tryon dataset bodies")
     if len(val) == 0:
         val = train
-    baseline = HeightWeightBaseline.fit(t.height[train], t.weight[train], t.gender[train], t.tapes[train])
-    shape_mean, shape_sd = t.shape[train].mean(0), t.shape[train].std(0) + 1e-3
+    std = Standards.fit(t, train)
     torch.manual_seed(config.seed)
     cfg = RegressorConfig(crop=t.masks.shape[-1], measurements=t.tapes.shape[1], shape=t.shape.shape[1],
                           joints=t.joints.shape[1])
     net = BodyFromViews(cfg)
+    net.encoder.standardise_profile(t.profile[train][t.present[train] > 0])
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs, eta_min=config.lr * 0.05)
     state = {"epoch": 0, "best_val": float("inf"), "history": []}
@@ -209,8 +248,9 @@ def train_body_photos(data: str | Path, out: str | Path, config: BodyTrainConfig
             idx = order[s:s + config.batch]
             # any number of views, in any order: 1 to all, drawn per person
             sets = [list(rng.permutation(V)[:rng.integers(1, V + 1)]) for _ in idx]
-            b = _batch(t, idx, baseline, shape_mean, shape_sd, sets)
-            o = net(b["mask"], b["keypoints"], b["present"], b["cond"])
+            given = rng.random(len(idx)) >= config.no_weight_fraction
+            b = _batch(t, idx, std, sets, given)
+            o = net(b["mask"], b["keypoints"], b["profile"], b["present"], b["cond"])
             loss, parts = _loss(o, b)
             opt.zero_grad()
             loss.backward()
@@ -220,8 +260,8 @@ def train_body_photos(data: str | Path, out: str | Path, config: BodyTrainConfig
                 sums[k] = sums.get(k, 0.0) + v * len(idx)
             bar.set_postfix(mse=f"{parts['mse']:.3f}")
         sched.step()
-        ev = evaluate(net, t, val, baseline, shape_mean, shape_sd)
-        score = max(ev[k]["girths_pct"] for k in ev if k.startswith("views-"))
+        ev = evaluate(net, t, val, std)
+        score = max(v["girths_pct"] for k, v in ev.items() if k.startswith("views-") and not k.endswith("no-weight"))
         if not np.isfinite(score):
             raise TryonError(f"training diverged in epoch {state['epoch'] + 1}; lower --lr")
         state["epoch"] += 1
@@ -230,15 +270,17 @@ def train_body_photos(data: str | Path, out: str | Path, config: BodyTrainConfig
                                  **{f"val_{k}_girths_pct": v["girths_pct"] for k, v in ev.items() if k != "people"}})
         if score < state["best_val"]:
             state["best_val"] = score
-            save_model(out / "best.npz", net, baseline, {"epoch": state["epoch"], "shape_mean": shape_mean.tolist(),
-                                                         "shape_sd": shape_sd.tolist()})
+            save_model(out / "best.npz", net, std.baseline, std.weight,
+                       {"epoch": state["epoch"], "shape_mean": std.shape_mean.tolist(),
+                        "shape_sd": std.shape_sd.tolist(), "tapes": t.tape_names, "views": t.views})
         torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(),
                     "state": json.dumps(state), "key": key}, out / (CHECKPOINT + ".tmp"))
         (out / (CHECKPOINT + ".tmp")).replace(ckpt)
         if progress:
             print(f"epoch {state['epoch']}: " + ", ".join(f"{k} {v['girths_pct']:.2f} %" for k, v in ev.items()
                                                           if k != "people"), flush=True)
-    best, baseline, card = load_model(out / "best.npz")
+    best = load_model(out / "best.npz")
+    card = best.card
     test = t.rows("test")
     card.update({"data": str(data), "manifest": {"kind": manifest.kind, "seed": manifest.seed,
                                                  "generator_version": manifest.generator_version,
@@ -246,9 +288,8 @@ def train_body_photos(data: str | Path, out: str | Path, config: BodyTrainConfig
                                                  "spec": manifest.spec},
                  "split": {s: int(len(t.rows(s))) for s in ("train", "val", "test")}, "train": config.to_dict(),
                  "history": state["history"], "wall_s": time.perf_counter() - t0,
-                 "test": evaluate(best, t, test, baseline, shape_mean, shape_sd) if len(test) else None,
-                 "tapes": t.tape_names})
-    save_model(out / "model.npz", best, baseline, card)
+                 "test": evaluate(best.net, t, test, std) if len(test) else None})
+    save_model(out / "model.npz", best.net, best.baseline, best.weight, card)
     with atomic_write(out / "model_card.json") as fh:
         json.dump(card, fh, indent=1)
     with atomic_write(out / "MODEL_CARD.md") as fh:

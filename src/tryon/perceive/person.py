@@ -45,6 +45,7 @@ MIN_KNEE_DEG = 130.0      # hip-knee-ankle, 3D landmarks (180: straight; straigh
 MAX_STRIDE_M = 0.65       # ankle to ankle, 3D landmarks: beyond this the person is walking
 MAX_PEOPLE = 4
 MASK_LEVEL = 0.5
+CROP = 128  # px: the square crop around the person that the body-from-photos regression reads
 
 
 @dataclass
@@ -239,6 +240,43 @@ def find_person(photo: np.ndarray, name: str = "photo") -> PersonInPhoto:
 def find_person_in_file(path: str | os.PathLike[str]) -> PersonInPhoto:
     """`find_person` on a photo file (errors name the file)."""
     return find_person(load_photo(path), str(path))
+
+
+def crop_box(box: tuple[int, int, int, int], margin: float = 0.1) -> tuple[float, float, float]:
+    """(x0, y0, side) of the square around a person's box, `margin` of its height added."""
+    x0, y0, x1, y1 = box
+    side = max(x1 - x0, y1 - y0) * (1 + 2 * margin)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    return cx - side / 2, cy - side / 2, side
+
+
+def crop_mask(mask: np.ndarray, crop: tuple[float, float, float], size: int = CROP) -> np.ndarray:
+    """The mask [H,W] (0-1) inside the square crop, resampled to size x size."""
+    from PIL import Image
+
+    x0, y0, side = crop
+    img = Image.fromarray((np.clip(mask, 0, 1) * 255).astype(np.uint8))
+    out = img.transform((size, size), Image.EXTENT, (x0, y0, x0 + side, y0 + side), Image.BILINEAR, fillcolor=0)
+    return np.asarray(out, dtype=np.float32) / 255.0
+
+
+@dataclass
+class PersonCrop:
+    """What the body-from-photos regression reads of one person: the mask in the square
+    crop around them (bool [CROP,CROP]), the 33 keypoints in crop units (0-1) with
+    visibility ([33,3]), and the crop (x0, y0, side) in the working image's pixels."""
+
+    mask: np.ndarray
+    keypoints: np.ndarray
+    crop: tuple[float, float, float]
+
+
+def person_crop(p: PersonInPhoto, size: int = CROP) -> PersonCrop:
+    """The crop of a found person, exactly as the photo datasets store it."""
+    crop = crop_box(p.box)
+    x0, y0, side = crop
+    kp = np.concatenate([(p.keypoints - [x0, y0]) / side, p.visibility[:, None]], 1)
+    return PersonCrop(crop_mask(p.mask, crop, size) > 0.5, kp.astype(np.float32), crop)
 
 
 def overlay(p: PersonInPhoto) -> np.ndarray:
