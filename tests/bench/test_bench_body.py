@@ -23,3 +23,12 @@ def test_bench_body_writes_a_record_per_views_and_method(tmp_path):
     assert all("inference_ms" in r and r["inference_ms"] > 0 for r in photos)
     mean = {r["views"]: r["measurement_error_pct"] for r in records if r["method"] == "mean"}
     assert all(r["measurement_error_pct"] < mean[r["views"]] for r in photos)
+
+
+def test_bench_body_refuses_counts_below_one(capsys):
+    from tryon.cli import main
+
+    assert main(["bench", "body", "--people", "0", "--json", "x.json"]) == 2
+    assert "--people 0" in capsys.readouterr().err
+    assert main(["bench", "body", "--drapes", "-1", "--json", "x.json"]) == 2
+    assert "--drapes -1" in capsys.readouterr().err

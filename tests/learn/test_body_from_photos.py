@@ -81,3 +81,5 @@ def test_the_number_of_views_and_the_person_are_checked_before_any_work(tmp_path
         body_from_image_files(["x.png"], 250, "male")
     with pytest.raises(TryonError, match="gender"):
         body_from_image_files(["x.png"], 170, "other")
+    with pytest.raises(TryonError, match="age 12"):
+        body_from_image_files(["x.png"], np.float32(170.0), "male", age=12)

@@ -91,14 +91,19 @@ def drape_comparison(json_path: str, t, rows: np.ndarray, model, count: int) -> 
         gender = "female" if t.gender[r] else "male"
         shape = _true_shape(t.shape[r])
         photos = photograph(shape, ("front", "left", "back", "right"), seed=int(r))
-        pb = body_from_photos([(f"view-{i}", p) for i, p in enumerate(photos)], float(t.height[r]), gender,
-                              float(t.weight[r]), float(t.age[r]), model)
         body = Measurements(height_cm=float(t.height[r]), weight_kg=float(t.weight[r]), gender=gender,
                             age=float(t.age[r]))
-        true_fit = _fit_of_shape(shape, body)
         req = DrapeRequest(body, garment="tshirt", size="M", fabric="gray-interlock", allow_tight=True)
-        on_true = drape(req, progress=False, person=true_fit)
-        on_photo = drape(req, progress=False, person=pb.fit)
+        try:
+            pb = body_from_photos([(f"view-{i}", p) for i, p in enumerate(photos)], float(t.height[r]), gender,
+                                  float(t.weight[r]), float(t.age[r]), model)
+            on_true = drape(req, progress=False, person=_fit_of_shape(shape, body))
+            on_photo = drape(req, progress=False, person=pb.fit)
+        except TryonError as exc:  # a render the finder refuses, a drape the simulator cannot make: counted
+            records.append({"views": 4, "clothing": "tight", "method": "tshirt-drape", "person": int(r),
+                            "failed": str(exc)[:300]})
+            print(f"person {int(r)}: no comparison ({str(exc)[:120]})")
+            continue
         faces = on_true.garment.faces
         dist = _surface_distance_cm(on_true.x, on_photo.x, faces)
         pics = [render_views(d.body_vertices, d.body_faces, d.x, faces, size=(300, 400), views=("front", "side"))
@@ -146,7 +151,8 @@ def run_body_bench(json_path: str, data: str | Path | None = None, model: str | 
                    people: int | None = 60, views: tuple[int, ...] = (1, 2, 4), drapes: int = 0) -> list[dict]:
     from tryon.body.fit import Measurements, fit_body
     from tryon.learn.train_body_photos import Standards, load_photo_tensors, predict, view_subsets
-    from tryon.learn.body_from_photos import fit_read_body, shipped_model
+    from tryon.learn.body_from_photos import fit_read_body, shipped_model, weight_in_range
+    from tryon.learn.body_photos import WEIGHT_TAPES
 
     data = Path(data) if data is not None else DEFAULT_DATA
     net = shipped_model(model)
@@ -187,9 +193,9 @@ def run_body_bench(json_path: str, data: str | Path | None = None, model: str | 
                     read = predict(net.net, t, np.array([r]), std, vs, given)[0]
                     ms = 1000.0 * (time.perf_counter() - t0)
                     tapes = dict(zip(t.tape_names, (float(x) for x in read)))
-                    weight = float(t.weight[r]) if given else float(net.weight.from_girths(
-                        t.height[r], t.gender[r], np.array([[tapes[k] for k in ("chest", "waist_navel", "hip", "thigh",
-                                                                                  "neck")]]))[0])
+                    weight = float(t.weight[r]) if given else weight_in_range(float(t.height[r]), g, float(
+                        net.weight.from_girths(t.height[r], t.gender[r], np.array([[tapes[k] for k in WEIGHT_TAPES]]))[0]),
+                        [])
                     t0 = time.perf_counter()
                     fit, _ = fit_read_body(float(t.height[r]), g, weight, float(t.age[r]), tapes, [])
                     fit_s = time.perf_counter() - t0
@@ -221,12 +227,13 @@ def run_body_bench(json_path: str, data: str | Path | None = None, model: str | 
             rec["read_error_pct"] = read["measurement_error_pct"]
             rec["read_per_measurement_pct"] = read["per_measurement_pct"]
         records.append(rec)
+    meta = {"bench": "body", "data": str(data), "model": str(model or "shipped"), "test_people": int(len(rows))}
+    write_records(json_path, records, **meta)  # kept even if a drape below fails
+    _print_table(records)
     if drapes:
         with one_torch_thread():
             records += drape_comparison(json_path, t, rows, model, drapes)
-    write_records(json_path, records, bench="body", data=str(data), model=str(model or "shipped"),
-                  test_people=int(len(rows)))
-    _print_table(records)
+        write_records(json_path, records, **meta)
     return records
 
 

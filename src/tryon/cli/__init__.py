@@ -111,7 +111,7 @@ def _person(args: argparse.Namespace):
     m = pb.measurements()
     print(f"body from {len(args.images)} photo(s): {m['weight_kg']:.1f} kg, chest {m['chest_cm']:.1f}, waist "
           f"{m['waist_cm']:.1f}, hip {m['hip_cm']:.1f} cm ({pb.timings['total_s']:.1f} s)")
-    return pb.request(args.age), pb.fit
+    return pb.request(), pb.fit
 
 
 def _cmd_drape(args: argparse.Namespace) -> int:
@@ -395,6 +395,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "body":
         from tryon.bench.body import run_body_bench
 
+        for name in ("people", "drapes"):
+            if getattr(args, name) is not None and getattr(args, name) < (0 if name == "drapes" else 1):
+                raise TryonError(f"--{name} {getattr(args, name)}: give a count of at least {0 if name == 'drapes' else 1}")
         run_body_bench(args.json, data=args.data, model=args.model, people=args.people or (4 if args.quick else 60),
                        drapes=args.drapes)
         return 0

@@ -29,10 +29,14 @@ def _cmd_dataset_drape(args: argparse.Namespace) -> int:
     from tryon.dataset import BodyRanges, DrapeDatasetSpec, make_drape_dataset
     from tryon.io.atomic import check_output_dir
 
+    # skirts and dresses are drafted for women; the other garments for everyone
+    genders = args.genders or (["female"] if args.garment in ("skirt", "dress") else ["female", "male"])
     spec = DrapeDatasetSpec(garment=args.garment, sizes=tuple(args.sizes), count=args.count, fabric=args.fabric,
                             edge_length=args.edge_length, seed=args.seed, shard_size=args.shard_size,
-                            ranges=BodyRanges(genders=tuple(args.genders), bmi=tuple(args.bmi)),
-                            extrapolation_bmi=args.extrapolation_bmi)
+                            ranges=BodyRanges(genders=tuple(genders), bmi=tuple(args.bmi)),
+                            extrapolation_bmi=args.extrapolation_bmi,
+                            fabrics=tuple(args.fabrics) if args.fabrics else None, fabric_mix=args.fabric_mix,
+                            size_window=args.size_window)
     spec.validate()  # every argument is checked before the first body or drape
     check_output_dir(args.out, force=args.force)
     store, report = make_drape_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
@@ -114,9 +118,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--garment", default="tshirt", help="tshirt, longsleeve, skirt, trousers or dress")
     p.add_argument("--sizes", nargs="+", default=["S", "M", "L"], help="standard sizes; every body is draped in each")
     p.add_argument("--count", type=int, default=100, help="bodies (samples per size)")
-    p.add_argument("--fabric", default="gray-interlock", help="fabric preset")
+    p.add_argument("--fabric", default="gray-interlock", help="fabric preset (with --fabrics: the references' fabric)")
+    p.add_argument("--fabrics", nargs="+", help="draw each drape's fabric from these measured presets")
+    p.add_argument("--fabric-mix", type=float, default=0.0,
+                   help="with --fabrics: the share of drapes whose fabric is blended between two of them")
+    p.add_argument("--size-window", type=int,
+                   help="drape each body in this many of --sizes around its own (one smaller, its own, larger) "
+                        "instead of in every size")
     p.add_argument("--edge-length", type=float, default=0.012, help="garment triangle edge length in metres")
-    p.add_argument("--genders", nargs="+", default=["female", "male"], choices=["female", "male"])
+    p.add_argument("--genders", nargs="+", choices=["female", "male"],
+                   help="default: female for skirt and dress, both for the other garments")
     p.add_argument("--bmi", type=float, nargs=2, default=[17.0, 45.0], metavar=("LOW", "HIGH"), help="BMI range (uniform)")
     p.add_argument("--extrapolation-bmi", type=float, default=40.0,
                    help="bodies at or above this BMI form the extrapolation split (held out of training)")

@@ -8,8 +8,12 @@ in measurement space (`bodies.sample_body`, no body fit), poses it in the A-pose
 the drape stage as `tryon drape` does (`simulate_drape`: the fit model morphs into the
 body under the garment, then the garment settles), with `DATASET_DRAPE`'s settings.
 
-Unit u is body u // len(sizes) in size sizes[u % len(sizes)]: every body is draped in
-every size.
+Unit u is body u // n in the (u % n)-th of its n sizes: every size (n = len(sizes)), or,
+with `size_window`, the n sizes around the body's own (one smaller, its own, then larger:
+the drapes a size recommendation compares, without the hopeless ones that fail after
+minutes). With `fabrics`, each unit's fabric is drawn from them, or, with probability
+`fabric_mix`, blended between two of them (`tryon.fabric.blend`); the references stay
+dressed in `fabric`.
 """
 
 from __future__ import annotations
@@ -32,14 +36,21 @@ from tryon.drape.dress import DressedGarment, dress_cached
 from tryon.drape.pipeline import DrapeRequest, fit_model_measurements, simulate_drape
 from tryon.errors import TryonError
 from tryon.fabric import load_fabric
+from tryon.fabric.base import Fabric
+from tryon.fabric.blend import blend_fabrics, fabric_features
+from tryon.fabric.wang2011 import WangFabric
 from tryon.garment.drafts import GARMENTS, draft
 from tryon.garment.sizes import SIZES
 from tryon.garment.triangulate import transfer_mesh, triangulate_pattern
 
 KIND = "drape"
+# 3: the fabric drawn per drape and the window of sizes around each body's own (specs
+# without `fabrics` and `size_window` make version 2's samples and keep its number, so the
+# datasets in git resume)
+GENERATOR_VERSION = 3
 # 2: tops are sewn with self-collision from sleeves placed clear of the bodice (dressing
 # v16), so their drapes differ from version 1's (data/tshirt-v1 was made with version 1)
-GENERATOR_VERSION = 2
+GENERATOR_VERSION_FIXED_FABRIC = 2
 GENDER_CODE = {"male": 0, "female": 1}
 # Drape settings a dataset fixes instead of recording: samples settle with the morph's step
 # throughout, as generator version 2 did (`tryon drape` has since settled with longer steps
@@ -70,6 +81,12 @@ class DrapeDatasetSpec:
     # the (gender, size) whose triangulation every size shares: datasets with the same
     # garment, edge length and topology have the same vertices and can be trained on together
     topology: tuple[str, str] = ("female", "M")
+    # the fabric of each drape drawn from these presets (None: every drape in `fabric`) ...
+    fabrics: tuple[str, ...] | None = None
+    # ... or, with this probability, blended between two of them
+    fabric_mix: float = 0.0
+    # drape each body in this many sizes around its own instead of in every size
+    size_window: int | None = None
 
     def validate(self) -> None:
         if self.garment not in GARMENTS:
@@ -89,6 +106,23 @@ class DrapeDatasetSpec:
         if not (0 < self.train_fraction and 0 <= self.val_fraction and self.train_fraction + self.val_fraction < 1):
             raise TryonError("train and validation fractions must be positive and leave room for a test split")
         load_fabric(self.fabric)
+        if self.fabrics is not None:
+            self.fabrics = tuple(self.fabrics)
+            if not self.fabrics or len(set(self.fabrics)) != len(self.fabrics):
+                raise TryonError(f"fabrics {list(self.fabrics)}: give distinct measured presets")
+            for name in self.fabrics:
+                if not isinstance(load_fabric(name), WangFabric):
+                    raise TryonError(f"fabric {name!r}: a dataset draws measured presets (Wang 2011) only")
+        if not 0.0 <= self.fabric_mix <= 1.0 or (self.fabric_mix and len(self.fabrics or ()) < 2):
+            raise TryonError(f"fabric mix {self.fabric_mix}: give a probability in 0-1 and at least two --fabrics to blend")
+        if self.size_window is not None and not 1 <= self.size_window <= len(self.sizes):
+            raise TryonError(f"size window {self.size_window}: give 1 to {len(self.sizes)} (the sizes listed)")
+        first = SIZES.index(self.sizes[0])
+        if self.size_window is not None and list(self.sizes) != list(SIZES[first:first + len(self.sizes)]):
+            raise TryonError(f"sizes {list(self.sizes)}: a size window needs consecutive sizes in order ({', '.join(SIZES)})")
+
+    def units_per_body(self) -> int:
+        return self.size_window or len(self.sizes)
 
     def manifest(self, software_version: str) -> Manifest:
         self.validate()
@@ -99,10 +133,14 @@ class DrapeDatasetSpec:
                                                                     **DATASET_RECORDED)).items() if k not in
                           ("body", "garment", "size", "fabric", "edge_length", "print_image", "print_width_cm")
                           + DRAPE_FIXED}}
+        drawn = {k: v for k, v in (("fabrics", list(self.fabrics) if self.fabrics else None),
+                                   ("fabric_mix", self.fabric_mix or None), ("size_window", self.size_window)) if v}
+        spec.update(drawn)
         split = {"rule": "by body: extrapolation if BMI >= extrapolation_bmi, else train / val / test drawn per body "
                          "from the seed", "train": self.train_fraction, "val": self.val_fraction,
                  "extrapolation_bmi": self.extrapolation_bmi}
-        return Manifest(KIND, GENERATOR_VERSION, software_version, self.seed, self.count * len(self.sizes),
+        version = GENERATOR_VERSION if drawn else GENERATOR_VERSION_FIXED_FABRIC
+        return Manifest(KIND, version, software_version, self.seed, self.count * self.units_per_body(),
                         self.shard_size, spec, split, created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
 
 
@@ -192,8 +230,79 @@ def _base_mesh(spec: dict):
 
 # ----------------------------------------------------------------------------- samples
 def unit_of(manifest: Manifest, unit: int) -> tuple[int, str]:
+    """(body, size) of a unit of a dataset that drapes every body in every size."""
+    if manifest.spec.get("size_window"):
+        raise DatasetError("this dataset drapes each body in the sizes around its own: use unit_body")
     sizes = manifest.spec["sizes"]
     return unit // len(sizes), sizes[unit % len(sizes)]
+
+
+# what decides a body's own size: the chest for tops, the hip for trousers and skirts, the
+# larger of the two for the dress
+SIZE_GIRTHS = {"tshirt": ("chest",), "longsleeve": ("chest",), "trousers": ("hip",), "skirt": ("hip",),
+               "dress": ("chest", "hip")}
+
+
+def own_size_index(garment: str, gender: str, m: dict) -> int:
+    """The index in `SIZES` of the size whose chart girths lie nearest the body's
+    (`drafting_measurements`, metres)."""
+    from tryon.garment.sizes import size_measurements
+
+    best = 0
+    for girth in SIZE_GIRTHS[garment]:
+        body_cm = 100.0 * m[f"{girth}_girth"]
+        chart = [size_measurements(s, gender)[f"{girth}_cm"] for s in SIZES]
+        best = max(best, int(np.argmin([abs(body_cm - c) for c in chart])))
+    return best
+
+
+def window_sizes(garment: str, gender: str, m: dict, sizes: list[str], window: int) -> list[str]:
+    """The `window` consecutive sizes of `sizes` from one below the body's own size, shifted
+    to stay inside the list."""
+    own = own_size_index(garment, gender, m) - SIZES.index(sizes[0])
+    first = min(max(own - 1, 0), len(sizes) - window)
+    return list(sizes[first:first + window])
+
+
+@dataclass
+class UnitBody:
+    """The body of a unit, A-posed as `tryon drape` poses it, and the unit's size."""
+
+    index: int
+    sample: BodySample
+    target: BodyPose
+    size: str
+
+
+def unit_body(manifest: Manifest, unit: int) -> UnitBody:
+    spec = manifest.spec
+    window = spec.get("size_window")
+    n = window or len(spec["sizes"])
+    body = sample_body(manifest.seed, unit // n, BodyRanges.from_dict(spec["ranges"]))
+    shape = body.shape()
+    m = drafting_measurements(shape)
+    sizes = window_sizes(spec["garment"], body.gender, m, spec["sizes"], window) if window else spec["sizes"]
+    return UnitBody(unit // n, body, posed_body(shape, "a", m["crotch_height"]), sizes[unit % n])
+
+
+def unit_fabric(manifest: Manifest, unit: int) -> tuple[Fabric, dict[str, np.ndarray]]:
+    """The fabric of a unit and what a sample records of it: the indices into the spec's
+    `fabrics` of the two fabrics blended (the same twice when none is), the weight of the
+    second, and `tryon.fabric.blend.fabric_features`."""
+    spec = manifest.spec
+    names = spec.get("fabrics")
+    if not names:
+        fabric = load_fabric(spec["fabric"])
+        return fabric, {"fabric_features": fabric_features(fabric)}
+    rng = np.random.default_rng([manifest.seed, unit, 13])
+    a = int(rng.integers(len(names)))
+    b, t = a, 0.0
+    if rng.random() < spec.get("fabric_mix", 0.0):
+        b = int((a + 1 + rng.integers(len(names) - 1)) % len(names))
+        t = round(float(rng.uniform(0.0, 1.0)), 3)
+    fabric = load_fabric(names[a]) if b == a else blend_fabrics(load_fabric(names[a]), load_fabric(names[b]), t)
+    return fabric, {"fabric_a": np.asarray(a), "fabric_b": np.asarray(b), "fabric_t": np.asarray(t, np.float32),
+                    "fabric_features": fabric_features(fabric)}
 
 
 def drape_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: int) -> dict[str, np.ndarray]:
@@ -202,15 +311,18 @@ def drape_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit:
 
     t0 = time.perf_counter()
     spec = manifest.spec
-    body_index, size = unit_of(manifest, unit)
-    body = sample_body(manifest.seed, body_index, BodyRanges.from_dict(spec["ranges"]))
+    unit_b = unit_body(manifest, unit)
+    body, size, target = unit_b.sample, unit_b.size, unit_b.target
     ref = refs[(body.gender, size)]
-    shape = body.shape()
-    target = posed_body(shape, "a", drafting_measurements(shape)["crotch_height"])
-    req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=spec["fabric"], edge_length=spec["edge_length"],
+    fabric, fabric_record = unit_fabric(manifest, unit)
+    drawn = spec.get("fabrics")  # a drawn fabric travels as its data; a fixed one by name, as before
+    req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size,
+                       fabric=fabric.to_arcsim_dict() if drawn else spec["fabric"], edge_length=spec["edge_length"],
                        **spec["drape"], **DATASET_DRAPE)
     n = len(ref.garment.vertices)
     out = sample_header(manifest, body, size, unit)
+    if drawn:
+        out.update(fabric_record)
     try:
         x, _, _, stats, solver = simulate_drape(req, ref.garment, ref.pose(), target, progress=False)
     except TryonError as exc:  # the sample is recorded as failed; the dataset goes on
@@ -243,10 +355,9 @@ def shape_params(vector: np.ndarray) -> ShapeParams:
 
 
 def sample_header(manifest: Manifest, body: BodySample, size: str, unit: int) -> dict[str, np.ndarray]:
-    body_index, _ = unit_of(manifest, unit)
-    return {"body": np.asarray(body_index), "size": np.asarray(manifest.spec["sizes"].index(size)),
+    return {"body": np.asarray(body.index), "size": np.asarray(manifest.spec["sizes"].index(size)),
             "gender": np.asarray(GENDER_CODE[body.gender]), "height_cm": np.asarray(body.height_cm),
             "bmi": np.asarray(body.bmi), "shape_params": shape_vector(body.params),
-            "split": np.asarray(split_of(manifest, body_index, body.bmi)),
+            "split": np.asarray(split_of(manifest, body.index, body.bmi)),
             "settled": np.asarray(False), "final_rest_speed": np.asarray(np.inf), "steps": np.asarray(0),
             "penetration_pct": np.asarray(np.nan), "max_strain": np.asarray(np.nan)}

@@ -14,6 +14,7 @@ bodies were.
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tryon.body.fit import BMI_RANGE, GENDERS, HEIGHT_RANGE_CM, TAPE_RANGE_CM, BodyFit, Measurements, fit_body
+from tryon.body.fit import (AGE_RANGE, BMI_RANGE, GENDERS, GIRTH_RANGE_CM, HEIGHT_RANGE_CM, TAPE_RANGE_CM, BodyFit,
+                           Measurements, fit_body)
 from tryon.errors import TryonError
 from tryon.io.threads import one_torch_thread
 from tryon.learn.body_photos import WEIGHT_TAPES, PhotoModel, check_views, condition, load_model, silhouette_profile
@@ -30,10 +32,10 @@ from tryon.perceive.person import K, PersonCrop, PersonInPhoto, find_person, per
 MODEL_PATH = Path(__file__).resolve().parent / "models" / "body-photos.npz"
 # the tapes the body is fitted to: those the photo dataset's bodies were fitted to
 FITTED = ("chest", "waist_navel", "hip", "neck", "thigh", "shoulder_width", "arm_length", "crotch_height")
-# measurements.json's names -> the tape
+# measurements.json's names -> the tape; the waist is measured at the navel, as ANSUR II's
+# waistcircumference is
 REPORTED = {"chest_cm": "chest", "waist_cm": "waist_navel", "hip_cm": "hip", "neck_cm": "neck", "thigh_cm": "thigh",
             "inseam_cm": "crotch_height", "arm_length_cm": "arm_length", "shoulder_width_cm": "shoulder_width"}
-GIRTH_RANGE = {"chest": (65.0, 160.0), "hip": (70.0, 170.0)}
 
 _MODELS: dict[str, PhotoModel] = {}
 
@@ -87,7 +89,7 @@ def read_measurements(model: PhotoModel, crops: list[PersonCrop], height_cm: flo
         w = float(model.weight.from_girths(height_cm, g, girths)[0])
         # the regression's own spread and each girth's, carried through its coefficient
         rel = np.array([sd[n] / tapes[n] for n in WEIGHT_TAPES])
-        weight_sd_log = float(np.sqrt(model.weight.sd_from_girths ** 2 + ((model.weight.coef_tapes[4:] * rel) ** 2).sum()))
+        weight_sd_log = float(np.sqrt(model.weight.sd_from_girths ** 2 + ((model.weight.coef_tapes[-len(WEIGHT_TAPES):] * rel) ** 2).sum()))
     return PhotoMeasurements(tapes, sd, w, given, weight_sd_log, out["camera"][0].numpy(), out["joints"][0].numpy())
 
 
@@ -105,10 +107,11 @@ class PhotoBody:
     timings: dict[str, float] = field(default_factory=dict)
     model: str = ""
     asked: dict[str, float] = field(default_factory=dict)  # the tapes the body was fitted to (cm)
+    age: float = 30.0
 
-    def request(self, age: float = 30.0) -> Measurements:
+    def request(self) -> Measurements:
         """The numbers the body was fitted to: `fit_body` of them is `self.fit`."""
-        return Measurements(height_cm=self.height_cm, gender=self.gender, weight_kg=self.read.weight_kg, age=age,
+        return Measurements(height_cm=self.height_cm, gender=self.gender, weight_kg=self.read.weight_kg, age=self.age,
                             **self.asked)
 
     def measurements(self) -> dict[str, float]:
@@ -125,7 +128,7 @@ class PhotoBody:
 
 
 def _clip_to_range(name: str, value: float, notes: list[str]) -> float:
-    lo, hi = TAPE_RANGE_CM.get(name) or GIRTH_RANGE.get(name) or (-math.inf, math.inf)
+    lo, hi = TAPE_RANGE_CM.get(name) or GIRTH_RANGE_CM.get(name) or (-math.inf, math.inf)
     if lo <= value <= hi:
         return value
     clipped = min(max(value, lo), hi)
@@ -143,14 +146,26 @@ def fit_read_body(height_cm: float, gender: str, weight_kg: float, age: float, t
         return fit_body(Measurements(height_cm=height_cm, gender=gender, weight_kg=weight_kg, age=age, **asked)), asked
 
 
-def _check_person(height_cm: float, gender: str, weight_kg: float | None) -> None:
+def weight_in_range(height_cm: float, gender: str, weight_kg: float, notes: list[str]) -> float:
+    """A weight read off the photos, kept inside the supported BMI range with a note."""
+    lo, hi = BMI_RANGE[gender]
+    bmi = weight_kg / (height_cm / 100.0) ** 2
+    if lo <= bmi <= hi:
+        return weight_kg
+    kept = min(max(bmi, lo), hi) * (height_cm / 100.0) ** 2
+    notes.append(f"the photos read a weight of {weight_kg:.1f} kg (BMI {bmi:.1f}), outside BMI {lo:g}-{hi:g}; "
+                 f"the body is fitted to {kept:.1f} kg")
+    return kept
+
+
+def _check_person(height_cm: float, gender: str, weight_kg: float | None, age: float) -> None:
     if gender not in GENDERS:
         raise TryonError(f"gender {gender!r}: give female or male")
-    lo, hi = HEIGHT_RANGE_CM
-    if not (isinstance(height_cm, (int, float)) and lo <= height_cm <= hi):
-        raise TryonError(f"height {height_cm} cm is outside the supported {lo:g}-{hi:g} cm")
+    for name, value, (lo, hi), unit in (("height", height_cm, HEIGHT_RANGE_CM, "cm"), ("age", age, AGE_RANGE, "years")):
+        if not (isinstance(value, numbers.Real) and lo <= float(value) <= hi):
+            raise TryonError(f"{name} {value} {unit} is outside the supported {lo:g}-{hi:g} {unit}")
     if weight_kg is not None:
-        Measurements(height_cm=height_cm, gender=gender, weight_kg=weight_kg).validate()
+        Measurements(height_cm=float(height_cm), gender=gender, weight_kg=float(weight_kg), age=float(age)).validate()
 
 
 def body_from_photos(photos: list[tuple[str, np.ndarray]], height_cm: float, gender: str,
@@ -158,7 +173,7 @@ def body_from_photos(photos: list[tuple[str, np.ndarray]], height_cm: float, gen
     """The body of the person in `photos` ((name, RGB uint8 [H,W,3]) each; 1-4 views of the
     same person, any sides, any order). Raises `PersonNotFound` naming the photo that
     shows no whole standing person."""
-    _check_person(height_cm, gender, weight_kg)
+    _check_person(height_cm, gender, weight_kg, age)
     check_views(len(photos))
     net = shipped_model(model)
     with one_torch_thread():  # small tensors: see tryon.io.threads
@@ -173,20 +188,13 @@ def _body_from_photos(photos, height_cm, gender, weight_kg, age, model, net) -> 
     read = read_measurements(net, crops, height_cm, gender, weight_kg)
     t2 = time.perf_counter()
     notes = [n for p in people for n in p.notes]
-    weight = read.weight_kg
     if weight_kg is None:
-        lo, hi = BMI_RANGE[gender]
-        bmi = weight / (height_cm / 100.0) ** 2
-        if not lo <= bmi <= hi:
-            weight = min(max(bmi, lo), hi) * (height_cm / 100.0) ** 2
-            notes.append(f"the photos read a weight of {read.weight_kg:.1f} kg (BMI {bmi:.1f}), outside BMI "
-                         f"{lo:g}-{hi:g}; the body is fitted to {weight:.1f} kg")
-            read.weight_kg = weight
-    fit, asked = fit_read_body(height_cm, gender, weight, age, read.tapes, notes)
+        read.weight_kg = weight_in_range(height_cm, gender, read.weight_kg, notes)
+    fit, asked = fit_read_body(float(height_cm), gender, read.weight_kg, float(age), read.tapes, notes)
     t3 = time.perf_counter()
     return PhotoBody(fit, read, float(height_cm), gender, people, crops, notes + list(fit.notes),
                      {"find_people_s": t1 - t0, "network_s": t2 - t1, "fit_s": t3 - t2, "total_s": t3 - t0},
-                     str(model or MODEL_PATH), asked)
+                     str(model or MODEL_PATH), asked, float(age))
 
 
 def body_from_image_files(paths: list[str], height_cm: float, gender: str, weight_kg: float | None = None,
@@ -194,7 +202,7 @@ def body_from_image_files(paths: list[str], height_cm: float, gender: str, weigh
     """`body_from_photos` on photo files (each read upright by its EXIF tag)."""
     from tryon.perceive.images import load_photo
 
-    _check_person(height_cm, gender, weight_kg)
+    _check_person(height_cm, gender, weight_kg, age)
     check_views(len(paths))
     return body_from_photos([(str(p), load_photo(p)) for p in paths], height_cm, gender, weight_kg, age, model)
 
@@ -256,6 +264,8 @@ def align_camera(joints: dict[str, np.ndarray], p: PersonInPhoto) -> PhotoCamera
         cam.rms_px = float(np.sqrt((w * (err ** 2).sum(1)).sum() / w.sum()))
         if scale > 0 and (best is None or cam.rms_px < best.rms_px):
             best = cam
+    if best is None:  # the finder refuses people who are not upright, so only degenerate keypoints get here
+        raise TryonError(f"{p.name}: the body cannot be laid on the person's keypoints (no upright camera fits them)")
     return best
 
 

@@ -7,7 +7,7 @@ pixels at levels set by the shoulders, hips and knees, over the person's height 
 crop; an MLP) into one feature. The profile is what a tailor reads off a photo; a CNN
 trained from scratch on a thousand people did not find it by itself (no better than
 stature and weight after seven epochs, where a ridge regression on the profile already
-cut the girths' error by a third). One shared body state (every tape measurement, as a residual from what
+cut the girths' error by nearly half: 1.56 % against 2.88 %). One shared body state (every tape measurement, as a residual from what
 stature, weight and gender predict) and one camera per view (yaw as cos / sin, scale,
 offset) start at zero; in each of three stages a regression block takes every view in turn
 and adds a correction to the body state and to that view's camera from that view's

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from tryon.dataset.bodies import BodyRanges, sample_body
-from tryon.dataset.drapes import GENERATOR_VERSION, KIND, sample_header, unit_of
+from tryon.dataset.drapes import KIND, sample_header, unit_of
 from tryon.dataset.generate import RunReport, open_dataset, run_generator
 from tryon.dataset.store import Manifest, ShardStore, software_version
 from tryon.errors import TryonError
@@ -47,7 +47,7 @@ def refined_manifest(source: Manifest, model_path: str | Path, count: int, seed:
                      "source_seed": source.seed, "source_software": source.software_version}
     split = {"rule": REFINED_SPLIT_RULE, "train": 1.0, "val": 0.0,
              "extrapolation_bmi": source.split["extrapolation_bmi"]}
-    return Manifest(KIND, GENERATOR_VERSION, software_version(), source.seed + REFINED_SEED_OFFSET if seed is None else seed,
+    return Manifest(KIND, source.generator_version, software_version(), source.seed + REFINED_SEED_OFFSET if seed is None else seed,
                     count * len(spec["sizes"]), source.shard_size, spec, split, created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
 
 

@@ -101,30 +101,32 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     return best["size"], reasons
 
 
-def _drape_or_reason(req: DrapeRequest) -> DrapeResult | str:
-    """`tryon drape` of the request, or why the simulator could not drape it (a size far
-    too small for the body)."""
+def _drape_or_reason(req: DrapeRequest, person=None) -> DrapeResult | str:
+    """`tryon drape` of the request (on `person`, the body fitted already, when given), or
+    why the simulator could not drape it (a size far too small for the body)."""
     from tryon.drape import drape
     from tryon.errors import SimulationError
 
     try:
-        return drape(req, progress=False)
+        return drape(req, progress=False, person=person)
     except SimulationError as exc:
         return str(exc)
 
 
-def _simulated_task(req: DrapeRequest) -> DrapeResult | str:
+def _simulated_task(req: DrapeRequest, person=None) -> DrapeResult | str:
     from tryon.parallel.executors import one_thread_per_worker
 
     one_thread_per_worker()
-    return _drape_or_reason(req)
+    return _drape_or_reason(req, person)
 
 
-def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address: str | None = None) -> list[DrapeResult | str]:
+def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address: str | None = None,
+                     person=None) -> list[DrapeResult | str]:
     """`tryon drape` of every request (or why it could not be draped): in this process, or
-    as Ray tasks (one CPU each) when `workers` > 1 or a cluster address is given."""
+    as Ray tasks (one CPU each) when `workers` > 1 or a cluster address is given. `person`:
+    the body fitted once for all of them."""
     if workers <= 1 and not ray_address:
-        return [_drape_or_reason(req) for req in requests]
+        return [_drape_or_reason(req, person) for req in requests]
     from tryon.parallel.executors import connect_ray
 
     started = connect_ray(ray_address, workers)
@@ -132,7 +134,8 @@ def simulated_drapes(requests: list[DrapeRequest], workers: int = 1, ray_address
 
     try:
         task = ray.remote(num_cpus=1, max_retries=1)(_simulated_task)
-        return ray.get([task.remote(req) for req in requests])
+        body = ray.put(person)
+        return ray.get([task.remote(req, body) for req in requests])
     finally:
         if started:
             ray.shutdown()
@@ -205,7 +208,7 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
     if method == "learned":
         results, judged = learned_sizes(requests, person, model, refine)
     else:
-        results = simulated_drapes(requests, workers, ray_address)
+        results = simulated_drapes(requests, workers, ray_address, person)
         judged = [undrapeable(s, r) if isinstance(r, str) else dict(judge_size(s, r), judged_on="simulated drape")
                   for s, r in zip(sizes, results)]
     draped = [r for r in results if not isinstance(r, str)]

@@ -304,7 +304,7 @@ def card_markdown(card: dict) -> str:
              f"Training: {card['train']}; best epoch {card['epoch']}.", ""]
     test = card.get("test")
     if test:
-        lines += [f"Test people: {test['people']}. Mean relative error (%) of the fitted measurements:", "",
+        lines += [f"Test people: {test['people']}. Mean relative error (%) of the measurements the network reads (`height-weight`: the least-squares regression on stature, weight and gender it reads them as residuals from):", "",
                   "| input | chest, waist, hip | " + " | ".join(card["tapes"]) + " |",
                   "|---|---|" + "---|" * len(card["tapes"])]
         for k, v in test.items():
