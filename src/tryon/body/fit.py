@@ -80,6 +80,8 @@ RATIO_SCALE = 0.02
 # (iterations of the first round, of each polishing round with the landmarks found again,
 # polishing rounds at most, tolerance on the loss change): from the warm start, and cold
 WARM_SCHEDULE = ((15, 6), 1, 1e-4)
+# from the amortised network's start (tryon.body.amortised): a few iterations, landmarks found once
+QUICK_SCHEDULE = ((8, 0), 0, 1e-4)
 COLD_SCHEDULE = ((30, 10), 2, 1e-5)
 # tape name -> the prior's key, for the tapes the prior-guided fit aims at
 PRIOR_TAPES = {"chest": "chest_cm", "waist_navel": "waist_navel_cm", "hip": "hip_cm", "neck": "neck_cm",
@@ -335,12 +337,13 @@ def _solve(prob: _Problem, z: torch.Tensor, max_iter: int, evals: list[int], tol
 
 
 def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False, prior: bool | AnthropometricPrior = True,
-             warm_start: bool = True) -> BodyFit:
+             warm_start: bool = True, start: np.ndarray | None = None) -> BodyFit:
     """Solve Anny's shape for `m`; raises `BodyFitError` outside the supported range.
     `prior` (default: the shipped ANSUR II prior) fills in what `m` does not give;
     `prior=False` is the pinned fit of stature, BMI and chest / waist / hip alone.
     `warm_start` starts the prior-guided fit from `tryon.body.warmstart`'s prediction
-    when the person's BMI is known (the same answer, found in fewer iterations)."""
+    when the person's BMI is known (the same answer, found in fewer iterations). `start`:
+    the unknowns to polish briefly instead (`tryon.body.amortised`'s prediction)."""
     m.validate()
     t0 = time.perf_counter()
     evals = [0]
@@ -360,11 +363,16 @@ def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False, prior:
         z = prob.initial()
         targets.update(_shape_ratio_targets(prob, z, targets))  # on the cold start: Anny's average shape
         warm = None
-        if warm_start and m.target_bmi() is not None:
+        schedule = WARM_SCHEDULE
+        if start is not None:
+            if np.shape(start) != tuple(z.shape):
+                raise BodyFitError(f"a start of {np.shape(start)} unknowns for a fit of {tuple(z.shape)}")
+            warm, schedule = torch.as_tensor(np.asarray(start, np.float64)), QUICK_SCHEDULE
+        elif warm_start and m.target_bmi() is not None:
             from tryon.body.warmstart import initial_unknowns
 
             warm = initial_unknowns(m.gender, m.height_cm, m.target_bmi(), m.age, len(z))
-        (first, polish), rounds, tol = WARM_SCHEDULE if warm is not None else COLD_SCHEDULE
+        (first, polish), rounds, tol = schedule if warm is not None else COLD_SCHEDULE
         z = _solve(prob, z if warm is None else warm, first, evals, tol)
         for _ in range(rounds):  # find the landmarks again on the fitted body and polish
             before = prob.landmarks

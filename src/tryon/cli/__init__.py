@@ -712,11 +712,13 @@ def build_parser() -> argparse.ArgumentParser:
     from tryon.cli.inverse import add_commands as add_inverse_commands
     from tryon.cli.learned import add_commands as add_learned_commands
     from tryon.cli.perceive import add_commands as add_perceive_commands
+    from tryon.cli.serve import add_commands as add_serve_commands
 
     add_inverse_commands(sub)
     add_perceive_commands(sub)
     add_dataset_commands(sub)
     add_learned_commands(sub)
+    add_serve_commands(sub)
     return p
 
 

@@ -47,6 +47,21 @@ def _cmd_train_body_photos(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train_body_fit(args: argparse.Namespace) -> int:
+    from tryon.body.amortised import MODEL_PATH
+    from tryon.body.amortised_build import build, train
+    from tryon.errors import TryonError
+
+    if not 100 <= args.people <= 1_000_000 or not 1 <= args.epochs <= 100_000:
+        raise TryonError("give 100 to 1,000,000 --people and 1-100000 --epochs")
+    build(args.data, args.people, seed=args.seed, progress=not args.quiet)  # the fits not made yet
+    out = args.out or MODEL_PATH
+    model = train(args.data, out, epochs=args.epochs, check=args.check, progress=not args.quiet)
+    print(json.dumps({"model": str(out), "unknowns_rms": model.card["unknowns_rms"], "check": model.card["check"]},
+                     indent=1))
+    return 0
+
+
 def _training_options(p: argparse.ArgumentParser, epochs: int, batch: int, lr: float) -> None:
     """The options every `tryon train` kind with a model folder takes."""
     p.add_argument("--epochs", type=int, default=epochs)
@@ -73,6 +88,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, MODEL_CARD.md, checkpoint.pt")
     _training_options(b, epochs=60, batch=16, lr=1e-3)
     b.set_defaults(func=_cmd_train_body_photos)
+    f = kinds.add_parser("body-fit", help="the amortised body fit: full fits of people across the range "
+                                          "(resumable), then the network from measurements to Anny's unknowns")
+    f.add_argument("--data", default="data/body-fits-v1", help="folder of the fits (made where missing)")
+    f.add_argument("--people", type=int, default=3000, help="people to fit (about 1.3 s each)")
+    f.add_argument("--out", help="model file (default: the shipped src/tryon/body/data/amortised_fit.npz)")
+    f.add_argument("--epochs", type=int, default=3000)
+    f.add_argument("--check", type=int, default=40, help="test people fitted both ways for the card")
+    f.add_argument("--seed", type=int, default=0, help="the people's seed")
+    f.add_argument("--quiet", action="store_true")
+    f.set_defaults(func=_cmd_train_body_fit)
     k = kinds.add_parser("kdsm", help="pose-dependent cloth: the pixel network of one method on a pose dataset "
                                       "(tryon dataset poses)")
     k.add_argument("--data", required=True, help="pose dataset folder")

@@ -59,14 +59,17 @@ def region_scores(result: DrapeResult) -> dict[str, dict[str, float]]:
     return out
 
 
-def judge_size(size: str, result: DrapeResult) -> dict:
+def judge_size(size: str, result: DrapeResult, strain_reliable: bool = True) -> dict:
+    """Whether `size` fits, from its drape. A network's prediction (`strain_reliable`
+    False) is judged by its ease alone: millimetres of noise in its vertices read as several
+    % of strain, so its overstretched area says nothing until refinement."""
     regions = region_scores(result)
     torso = [regions[r] for r in TORSO if r in regions]
     ease = float(np.mean([r["ease_cm"] for r in torso])) if torso else float("nan")
     over = float(result.metrics["overstrained_area_pct"])
     tight = [name for name, r in regions.items() if r["ease_cm"] < MIN_EASE_CM]
     why = []
-    if over >= MAX_OVERSTRAINED_PCT:
+    if strain_reliable and over >= MAX_OVERSTRAINED_PCT:
         why.append(f"{over:.0f} % of its area is stretched beyond {100 * OVERSTRAIN:.0f} %")
     if tight:
         why.append(f"it clings to the skin at the {', '.join(tight)} (ease under {MIN_EASE_CM} cm)")
@@ -84,8 +87,10 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
         last = settled[-1]
         return last["size"], [f"no size fits: even {last['size']} does not, since " + "; ".join(last["why_not"])]
     best = min(fitting, key=lambda j: abs(j["torso_ease_cm"] - TARGET_EASE_CM))
+    stretch = ("strain judged after refinement" if best.get("judged_on") == "prediction"
+               else f"{best['overstrained_area_pct']:.0f} % of the area overstretched")
     reasons = [f"{best['size']}: torso ease {best['torso_ease_cm']:.1f} cm (a regular fit is about {TARGET_EASE_CM:.1f} cm), "
-               f"{best['overstrained_area_pct']:.0f} % of the area overstretched"]
+               f"{stretch}"]
     for j in judged:
         if j is best:
             continue
@@ -149,7 +154,7 @@ def learned_sizes(requests: list[DrapeRequest], person, model, refine: bool = Tr
 
     def predicted(req: DrapeRequest) -> tuple[DrapeResult, dict]:
         r = learned_drape(req, person=person, model=model)
-        return r, dict(judge_size(req.size, r), judged_on="prediction")
+        return r, dict(judge_size(req.size, r, strain_reliable=False), judged_on="prediction")
 
     if not refine:
         pairs = [predicted(req) for req in requests]

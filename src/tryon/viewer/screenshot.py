@@ -65,3 +65,16 @@ def screenshot_viewer(viewer_dir: str | Path, png: str | Path, mode: str | None 
         server.shutdown()
     found = re.search(r'id="status"[^>]*>([^<]*)<', dom)
     return found.group(1).strip() if found else ""
+
+
+def screenshot_url(url: str, png: str | Path, size: tuple[int, int] = (900, 800), timeout: float = 180.0) -> str:
+    """Load `url` in headless Chromium, save a screenshot to `png`, and return the page's DOM
+    as the browser left it (a second load: Chromium does one or the other per run)."""
+    browser = find_browser()
+    png = Path(png).resolve()
+    with tempfile.TemporaryDirectory() as profile:
+        shot = _chromium(browser, profile, size, [f"--screenshot={png}", url], timeout)
+        if shot.returncode != 0 or not png.exists():
+            raise TryonError(f"Chromium screenshot failed (exit {shot.returncode}): {shot.stderr[-500:]}")
+    with tempfile.TemporaryDirectory() as profile:
+        return _chromium(browser, profile, size, ["--dump-dom", url], timeout).stdout
