@@ -184,14 +184,15 @@ def train(folder: str | Path, out: str | Path, epochs: int = 3000, hidden: int =
 
 
 def compare_to_full_fit(model, seed: int, people: np.ndarray, progress: bool = True) -> dict:
-    """The quick fit against the full one on `people`: the largest difference in stature,
-    chest, waist, hip and every tape asked (cm), and the time of each."""
+    """The quick fit against the full one on `people`: per person the largest difference
+    (cm) in stature and every tape asked, and in those and chest, waist and hip; by what
+    the person gave (stature and weight only, or more); and the time of each fit."""
     from tqdm import tqdm
 
     from tryon.body.amortised import quick_fit
     from tryon.io.threads import one_torch_thread
 
-    worst, quick_s, full_s = [], [], []
+    rows = []
     with one_torch_thread():
         for i in tqdm(people, desc="quick against full fits", unit="person", disable=not progress):
             m = draw_person(seed, int(i))
@@ -200,22 +201,29 @@ def compare_to_full_fit(model, seed: int, people: np.ndarray, progress: bool = T
             t1 = time.perf_counter()
             quick = quick_fit(m, model)
             t2 = time.perf_counter()
-            keys = set(COMPARED) | {f"{k}_cm" for k in m.tapes()}
-            worst.append(max(abs(quick.achieved[k] - full.achieved[k]) for k in keys if k in full.achieved))
-            full_s.append(t1 - t0)
-            quick_s.append(t2 - t1)
-    worst_a = np.array(worst)
-    return {"people": len(people), "max_difference_cm": {"median": float(np.median(worst_a)),
-                                                         "p95": float(np.percentile(worst_a, 95)),
-                                                         "max": float(worst_a.max())},
-            "within_0_5_cm_pct": float(100 * (worst_a <= 0.5).mean()),
-            "quick_s": {"median": float(np.median(quick_s)), "p95": float(np.percentile(quick_s, 95))},
-            "full_s": {"median": float(np.median(full_s)), "p95": float(np.percentile(full_s, 95))}}
+            asked = {"height_cm"} | {f"{k}_cm" for k in m.tapes()}
+            diff = {k: abs(quick.achieved[k] - full.achieved[k]) for k in asked | set(COMPARED)}
+            rows.append({"given": len(m.tapes()), "asked": max(diff[k] for k in asked), "all": max(diff.values()),
+                         "quick_s": t2 - t1, "full_s": t1 - t0})
+    if not rows:
+        return {}
+
+    def stats(values: list[float]) -> dict:
+        v = np.array(values)
+        return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max()),
+                "within_0_5_cm_pct": float(100 * (v <= 0.5).mean()), "people": len(v)}
+
+    return {"people": len(rows),
+            "asked_cm": stats([r["asked"] for r in rows]),
+            "asked_cm_stature_and_weight_only": stats([r["asked"] for r in rows if r["given"] == 0] or [np.nan]),
+            "asked_cm_with_tapes": stats([r["asked"] for r in rows if r["given"] > 0] or [np.nan]),
+            "with_chest_waist_hip_cm": stats([r["all"] for r in rows]),
+            "quick_s": stats([r["quick_s"] for r in rows]), "full_s": stats([r["full_s"] for r in rows])}
 
 
 def card_markdown(card: dict) -> str:
     c = card["check"]
-    return "\n".join([
+    lines = [
         "# Amortised body fit: model card", "",
         "An MLP from what is known of a person (gender, stature, BMI, age, and every ANSUR II measurement, given or "
         "the prior's most likely value) to the unknowns of the prior-guided body fit; a few L-BFGS iterations polish "
@@ -225,12 +233,22 @@ def card_markdown(card: dict) -> str:
         f"{card['people']['train']} train, {card['people']['test']} test (every {TEST_EVERY}th person).",
         f"Training: {card['training']}.", "",
         f"Unknowns rms (logit / atanh units): train {card['unknowns_rms']['train']:.3f}, "
-        f"test {card['unknowns_rms']['test']:.3f}.", "",
-        f"Against the full fit on {c['people']} test people (largest difference over stature, chest, waist, hip and "
-        "every tape asked):", "",
-        "| | median | p95 | max |", "|---|---:|---:|---:|",
-        f"| difference (cm) | {c['max_difference_cm']['median']:.2f} | {c['max_difference_cm']['p95']:.2f} | "
-        f"{c['max_difference_cm']['max']:.2f} |",
-        f"| quick fit (s) | {c['quick_s']['median']:.2f} | {c['quick_s']['p95']:.2f} | |",
-        f"| full fit (s) | {c['full_s']['median']:.2f} | {c['full_s']['p95']:.2f} | |", "",
-        f"Within 0.5 cm: {c['within_0_5_cm_pct']:.0f} % of the people.", ""])
+        f"test {card['unknowns_rms']['test']:.3f}.", ""]
+    if c:
+        lines += [f"Against the full fit on {c['people']} test people: the largest difference per person (cm).", "",
+                  "| compared | people | median | p95 | max | within 0.5 cm |", "|---|---:|---:|---:|---:|---:|"]
+        for key, label in (("asked_cm", "stature and every tape asked"),
+                           ("asked_cm_stature_and_weight_only", "... people who gave stature and weight only"),
+                           ("asked_cm_with_tapes", "... people who gave tapes too"),
+                           ("with_chest_waist_hip_cm", "stature, every tape asked, chest, waist, hip")):
+            v = c[key]
+            lines.append(f"| {label} | {v['people']} | {v['median']:.2f} | {v['p95']:.2f} | {v['max']:.2f} | "
+                         f"{v['within_0_5_cm_pct']:.0f} % |")
+        lines += ["", f"Time: quick fit median {c['quick_s']['median']:.2f} s (p95 {c['quick_s']['p95']:.2f}), full fit "
+                      f"{c['full_s']['median']:.2f} s (p95 {c['full_s']['p95']:.2f}), on one thread.", "",
+                  "Where several tapes are given that Anny cannot meet together, the full fit's own answer depends on "
+                  "where it starts. Measured on 12 test people: the full fit started from the network's answer, with "
+                  "its whole schedule, ended up to 6.0 cm (median 0.4 cm) from the full fit started from its own warm "
+                  "start, the largest gaps on people who gave eight tapes. Those people's differences above are "
+                  "that ambiguity as much as the quick fit's.", ""]
+    return "\n".join(lines)
