@@ -40,7 +40,7 @@ def test_the_page_shows_the_size_in_3d_and_switches_to_ease(server, tmp_path):
 
     url = f"{server}/?auto=1&until=predicted&mode=ease&height_cm=180&weight_kg=78&gender=male&garment=tshirt"
     png = tmp_path / "page.png"
-    dom = screenshot_url(url, png, size=(420, 860))  # a phone-sized viewport
+    dom = screenshot_url(url, png, size=(420, 1250))  # a phone-sized width
     status = re.search(r'id="status"[^>]*>([^<]*)<', dom).group(1)
     assert status.startswith("ready: size"), status
     assert "ease" in status

@@ -144,7 +144,7 @@ function renderFit(view) {
   if (!view.recommended) { $('reason').textContent = `${view.status}…`; return; }
   const refining = view.status === 'predicted' ? ' (refining…)' : '';
   $('recommended').textContent = `Your size: ${view.recommended}${refining}`;
-  $('reason').textContent = view.reasons.join(' ');
+  $('reason').textContent = view.reasons.join('; ');
   $('sizes').innerHTML = view.sizes.map((s) => `<button type="button" data-size="${s.size}" class="${s.fits ? '' : 'nofit'}" title="${s.why_not.join('; ')}">${s.size}${s.ease_cm != null ? ` · ${s.ease_cm.toFixed(1)} cm` : ''}</button>`).join('');
   $('sizes').querySelectorAll('button').forEach((b) => b.addEventListener('click', () => showSize(view.sizes.find((s) => s.size === b.dataset.size))));
   const keep = shown && view.sizes.find((s) => s.size === document.querySelector('#sizes button.on')?.dataset.size);
