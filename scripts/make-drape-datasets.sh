@@ -14,6 +14,8 @@ GARMENTS=${GARMENTS:-"tshirt longsleeve trousers skirt dress"}
 FABRICS="ivory-rib-knit pink-ribbon-brown white-dots-on-blk navy-sparkle-sweat camel-ponte-roma gray-interlock
  11oz-black-denim white-swim-solid tango-red-jet-set royal-target"
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+# one thread for numba too: two of these scripts side by side (GARMENTS=...) then share two cores without contention
+export NUMBA_NUM_THREADS=${NUMBA_NUM_THREADS:-1}
 for pass in $(seq "$PASSES"); do
   for garment in $GARMENTS; do
     echo "pass $pass: $garment $(date -u +%H:%M:%S)"
