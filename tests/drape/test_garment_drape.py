@@ -404,24 +404,24 @@ def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
     with pytest.raises(TryonError, match=r"size S is too small.*bust / chest.*try size X?X?L.*--allow-tight"):
         drape(req, progress=False)
     # the drape matrix drapes such a body made to measure and records why
-    from tryon.bench.drape_matrix import MADE_TO_MEASURE, nearest_size
+    from tryon.sizing.chart import MADE_TO_MEASURE, chart_size
 
-    size, why = nearest_size("trousers", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
+    size, why = chart_size("trousers", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
     assert size == MADE_TO_MEASURE and "hip" in why
-    assert nearest_size("tshirt", {"chest_cm": 120, "waist_cm": 108, "hip_cm": 127}, "female") == ("XXL", None)
+    assert chart_size("tshirt", {"chest_cm": 120, "waist_cm": 108, "hip_cm": 127}, "female") == ("XXL", None)
     # a T-shirt whose chest would stretch over this man but whose hem would not go over his hip
-    size, why = nearest_size("tshirt", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
+    size, why = chart_size("tshirt", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
     assert size == MADE_TO_MEASURE and "hip is 148 cm" in why and "chest with ease" in why
     # a skirt whose hip would stretch over this body but whose waistband would not close
-    size, why = nearest_size("skirt", {"chest_cm": 150, "waist_cm": 132, "hip_cm": 147}, "female")
+    size, why = chart_size("skirt", {"chest_cm": 150, "waist_cm": 132, "hip_cm": 147}, "female")
     assert size == MADE_TO_MEASURE and "waist is 132 cm" in why
     # a belly fuller than the skirt between its waist and hip, though band and seat close
     # (the ANSUR II prior's 175 cm, 138 kg woman); without the navel girth it is XXL
     full = {"chest_cm": 128, "waist_cm": 122, "hip_cm": 140.6}
-    assert nearest_size("skirt", full, "female") == ("XXL", None)
-    size, why = nearest_size("skirt", {**full, "waist_navel_cm": 137}, "female")
+    assert chart_size("skirt", full, "female") == ("XXL", None)
+    size, why = chart_size("skirt", {**full, "waist_navel_cm": 137}, "female")
     assert size == MADE_TO_MEASURE and "belly at the navel" in why and "137 cm" in why
-    assert nearest_size("tshirt", {**full, "waist_navel_cm": 137}, "female")[0] == "XXL"  # straight, 139 cm
+    assert chart_size("tshirt", {**full, "waist_navel_cm": 137}, "female")[0] == "XXL"  # straight, 139 cm
     # the demo man (172 cm, 84 kg) on Anny's average shape, in the trouser cases' size M: its
     # band 14 % under his waist still closes (the ANSUR II prior's body has a 94 cm waist, 8 %)
     from tryon.body.fit import fit_body

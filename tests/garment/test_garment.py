@@ -11,7 +11,8 @@ from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, draft
 from tryon.drape.dress import SEAMS_CLOSED, dress_pattern
 from tryon.garment.pattern import Edge, Panel, Pattern, PatternError, Seam
-from tryon.garment.sizes import SIZES, size_chart, size_for_chest, size_measurements
+from tryon.garment.sizes import SIZES, size_chart, size_measurements
+from tryon.sizing.chart import size_for_chest
 from tryon.garment.triangulate import merge_stitched, triangulate_pattern
 from tryon.errors import TryonError
 

@@ -165,7 +165,7 @@ def test_surface_distance_between_two_drapes_counts_either_side_and_ignores_tria
 
 
 def test_size_command_recommends_one_of_the_sizes_with_reasons_and_a_picture(tiny, tmp_path, capsys):
-    from tryon.learn.size import TARGET_EASE_CM
+    from tryon.sizing.judge import TARGET_EASE_CM
 
     train_drape(tiny, tmp_path / "m", TrainConfig(epochs=2, batch=2), progress=False)
     out = tmp_path / "size"
@@ -246,7 +246,7 @@ def test_self_correction_labels_more_bodies_by_refinement_and_trains_on_both(tin
 def test_simulated_sizes_drape_as_ray_tasks_like_in_process():
     from tryon.body.fit import Measurements
     from tryon.drape import DrapeRequest
-    from tryon.learn.size import simulated_drapes
+    from tryon.sizing.recommend import simulated_drapes
 
     body = Measurements(height_cm=170, weight_kg=64, gender="female")
     requests = [DrapeRequest(body, garment="tshirt", size=s, edge_length=0.03, allow_tight=True) for s in ("S", "M")]
@@ -259,7 +259,7 @@ def test_simulated_sizes_drape_as_ray_tasks_like_in_process():
 
 
 def test_a_size_the_simulator_cannot_drape_is_judged_as_not_fitting():
-    from tryon.learn.size import TARGET_EASE_CM, recommend, undrapeable
+    from tryon.sizing.judge import TARGET_EASE_CM, recommend, undrapeable
 
     failed = undrapeable("M", "draping tshirt makes no progress: the collision response failed; 332 impacts")
     assert not failed["fits"] and "could not drape it (draping tshirt makes no progress" in failed["why_not"][0]
@@ -272,7 +272,7 @@ def test_a_size_the_simulator_cannot_drape_is_judged_as_not_fitting():
 
 
 def test_sizes_left_unrefined_are_reported_but_not_recommended():
-    from tryon.learn.size import TARGET_EASE_CM, recommend
+    from tryon.sizing.judge import TARGET_EASE_CM, recommend
 
     def size(name, fits, ease, judged_on, **more):
         return {"size": name, "fits": fits, "why_not": [] if fits else ["too tight"], "torso_ease_cm": ease,

@@ -3,15 +3,9 @@ with its address uses it, and a run without an address meanwhile starts a Ray of
 instead of joining that cluster."""
 
 import json
-import os
-import shutil
-import socket
 import subprocess
 import sys
-import tempfile
 import textwrap
-import time
-from pathlib import Path
 
 import pytest
 
@@ -33,50 +27,8 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_for(port: int, timeout: float = 90.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
-            return
-        except OSError:
-            time.sleep(0.5)
-    raise AssertionError(f"ray start did not listen on port {port} within {timeout:.0f} s")
-
-
-@pytest.fixture
-def cluster():
-    """A Ray head on loopback with 3 CPUs (a run's own Ray has as many as its workers), as a
-    user starts one; stopped with its process."""
-    port = _free_port()
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
-    env.pop("RAY_ADDRESS", None)
-    temp = tempfile.mkdtemp(prefix="rc", dir="/tmp")  # short: Ray's socket paths live under it
-    ray_bin = Path(sys.executable).with_name("ray")
-    head = subprocess.Popen([str(ray_bin), "start", "--head", "--block", "--node-ip-address", "127.0.0.1",
-                             "--port", str(port), "--num-cpus", "3", "--include-dashboard", "false",
-                             "--disable-usage-stats", "--temp-dir", temp],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        _wait_for(port)
-        yield f"127.0.0.1:{port}", env
-    finally:
-        head.terminate()
-        try:
-            head.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            head.kill()
-        shutil.rmtree(temp, ignore_errors=True)
-
-
-def test_a_run_uses_a_cluster_started_with_ray_start_and_a_local_run_keeps_its_own(cluster):
-    address, env = cluster
+def test_a_run_uses_a_cluster_started_with_ray_start_and_a_local_run_keeps_its_own(ray_cluster):
+    address, env = ray_cluster
     r = subprocess.run([sys.executable, "-c", SCRIPT, address], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-1500:]
     result = json.loads(r.stdout.split("RESULT ", 1)[1])

@@ -62,7 +62,7 @@ def test_a_job_cut_off_by_a_stop_is_queued_again_then_failed_with_its_reason(tmp
     body_id = store.add_body(BODY, {"measurements": {}})
     fit_id = store.add_fit(body_id, {"garment": "tshirt", "fabric": "gray-interlock", "sizes": None})
     for expected in ("queued", "failed"):
-        assert store.claim_next() == fit_id
+        assert store.claim_next() == (fit_id, "answer")
         with _client(tmp_path, workers=0) as client:  # a start finds it running
             view = client.get(f"/v1/fits/{fit_id}").json()
         assert view["status"] == expected
@@ -96,8 +96,12 @@ def test_a_shopper_gets_a_body_then_a_predicted_then_a_refined_tshirt_size(tmp_p
         assert view["status"] == "refined", view
         assert "predicted" in seen
         assert view["recommended"] in ("M", "L") and view["reasons"]
+        refined = [s for s in view["sizes"] if s["judged_on"] == "refined drape"]
+        assert view["recommended"] in [s["size"] for s in refined]
         for s in view["sizes"]:
-            assert s["ease_cm"] is not None and s["glb_url"].endswith(".glb")
+            assert s["ease_cm"] is not None and client.get(s["scene_url"]).status_code == 200
+            assert (s["not_refined"] is None) == (s in refined)
+        for s in refined:
             png = client.get(s["fit_map_url"])
             assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
             assert client.get(s["glb_url"]).content[:4] == b"glTF"

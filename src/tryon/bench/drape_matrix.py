@@ -23,9 +23,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from tryon.io.atomic import atomic_write, claim_work_dir
 from tryon.io.json_safe import dumps_json
+from tryon.sizing.chart import chart_size, fitted_girths
 
 TARGET_S = 60.0
 # A cell's simulated drape stops with the drape's own diagnosis after this long (a pass
@@ -57,35 +57,6 @@ BODIES = (
     Body("male", 192, 40), Body("male", 200, 45),
 )
 QUICK_BODIES = (Body("female", 165, 22), Body("male", 180, 25))
-
-
-MADE_TO_MEASURE = "MTM"
-
-
-def nearest_size(garment: str, girths: dict, gender: str) -> tuple[str, str | None]:
-    """The standard size whose chest (tops) or hip (bottoms) is nearest the body's, or the
-    next larger one when that is too small for the body (`tryon drape` refuses it: a
-    waistband that cannot close), or made to measure (`MADE_TO_MEASURE`, drafted on the
-    body) when every larger size is too; the second item says why."""
-    from tryon.garment.drafts import DEFINING_GIRTH, size_too_small
-    from tryon.garment.sizes import SIZES, size_measurements
-
-    key = f"{DEFINING_GIRTH[garment]}_cm"
-    nearest = min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
-    why = None
-    for size in SIZES[SIZES.index(nearest):]:
-        too_small = size_too_small(garment, size, size_measurements(size, gender), girths)
-        if too_small is None:
-            return size, None
-        why = why or too_small
-    return MADE_TO_MEASURE, why
-
-
-def fitted_girths(fit) -> dict:
-    """The chest, waist, hip and (when the fit measured it) waist at the navel (cm) a body
-    fit achieved, as `nearest_size` takes them."""
-    keys = ("chest_cm", "waist_cm", "hip_cm", "waist_navel_cm")
-    return {k: float(fit.achieved[k]) for k in keys if k in fit.achieved}
 
 
 def body_girths(body: Body) -> dict:
@@ -141,7 +112,7 @@ def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: fl
     for body, garment, fabric in cells(quick):
         if body.key not in girths:
             girths[body.key] = body_girths(body)
-        size, why = nearest_size(garment, girths[body.key], body.gender)
+        size, why = chart_size(garment, girths[body.key], body.gender)
         name = f"{garment}-{size}-{fabric}-{body.key}"
         done = cell_root / f"{name}.json"
         if done.exists():

@@ -32,7 +32,7 @@ def mean_surface_distance_cm(a_v: np.ndarray, a_f: np.ndarray, b_v: np.ndarray, 
 
 def outside_body_record(gender: str, height_cm: float, weight_kg: float, model, fabric: str) -> dict:
     """Both drapes of one body and how far apart they are."""
-    from tryon.bench.drape_matrix import fitted_girths, nearest_size
+    from tryon.sizing.chart import chart_size, fitted_girths
     from tryon.body.fit import Measurements, fit_body
     from tryon.drape import drape
     from tryon.drape.pipeline import DrapeRequest
@@ -41,7 +41,7 @@ def outside_body_record(gender: str, height_cm: float, weight_kg: float, model, 
     body = Measurements(height_cm=height_cm, weight_kg=weight_kg, gender=gender)
     t0 = time.perf_counter()
     person = fit_body(body)  # the learned side's fit, timed with it; it also picks the size
-    size = nearest_size(model.garment, fitted_girths(person), gender)[0]
+    size = chart_size(model.garment, fitted_girths(person), gender)[0]
     if size not in model.sizes:
         raise ValueError(f"the {height_cm} cm / {weight_kg} kg {gender} wears {size}, which the model does not know")
     req = DrapeRequest(body, garment=model.garment, size=size, fabric=fabric)

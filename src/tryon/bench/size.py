@@ -39,7 +39,7 @@ def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str 
                kept: dict | None = None) -> dict:
     """Both recommendations for one body. The simulated side of a `kept` record is reused
     (minutes per body); the learned side is always measured again (seconds)."""
-    from tryon.learn.size import size_recommendation
+    from tryon.sizing.recommend import size_recommendation
 
     body = Measurements(height_cm=height_cm, weight_kg=weight_kg, gender=gender)
     learned, _ = size_recommendation(body, method="learned", refine=True, model_path=model_path)
@@ -60,7 +60,7 @@ def bench_body(gender: str, height_cm: float, weight_kg: float, model_path: str 
 def _apply_current_rule(rec: dict) -> None:
     """Both recommendations again from the stored per-size numbers, by the rule as it is now
     (a kept body may have been judged under an earlier rule: nothing is draped again)."""
-    from tryon.learn.size import recommend
+    from tryon.sizing.judge import recommend
 
     for method in ("learned", "simulated"):
         sizes = rec[method]["sizes"]

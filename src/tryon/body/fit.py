@@ -82,6 +82,9 @@ RATIO_SCALE = 0.02
 WARM_SCHEDULE = ((15, 6), 1, 1e-4)
 # from the amortised network's start (tryon.body.amortised): a few iterations, landmarks found once
 QUICK_SCHEDULE = ((8, 0), 0, 1e-4)
+# ... and half as many when only stature and weight are given (the network alone is then
+# within a few millimetres of the full fit: tryon/body/data/amortised_fit.md)
+QUICK_SCHEDULE_STATURE_WEIGHT = ((4, 0), 0, 1e-4)
 COLD_SCHEDULE = ((30, 10), 2, 1e-5)
 # tape name -> the prior's key, for the tapes the prior-guided fit aims at
 PRIOR_TAPES = {"chest": "chest_cm", "waist_navel": "waist_navel_cm", "hip": "hip_cm", "neck": "neck_cm",
@@ -367,7 +370,8 @@ def fit_body(m: Measurements, max_iter: int = 60, progress: bool = False, prior:
         if start is not None:
             if np.shape(start) != tuple(z.shape):
                 raise BodyFitError(f"a start of {np.shape(start)} unknowns for a fit of {tuple(z.shape)}")
-            warm, schedule = torch.as_tensor(np.asarray(start, np.float64)), QUICK_SCHEDULE
+            warm = torch.as_tensor(np.asarray(start, np.float64))
+            schedule = QUICK_SCHEDULE if m.tapes() else QUICK_SCHEDULE_STATURE_WEIGHT
         elif warm_start and m.target_bmi() is not None:
             from tryon.body.warmstart import initial_unknowns
 

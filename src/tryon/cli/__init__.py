@@ -162,7 +162,8 @@ def _how(rep: dict) -> str:
 
 
 def _cmd_size(args: argparse.Namespace) -> int:
-    from tryon.learn.size import size_recommendation, write_size_outputs
+    from tryon.sizing.outputs import write_size_outputs
+    from tryon.sizing.recommend import size_recommendation
 
     if args.workers < 1:
         raise TryonError(f"--workers must be at least 1, got {args.workers}")
@@ -388,10 +389,19 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
 
 
 BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm",
-           "size", "anthropometry", "body"]
+           "size", "anthropometry", "body", "serve"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "serve":
+        from tryon.bench.serve import run_serve_bench
+
+        if args.shoppers < 1 or args.duration <= 0 or args.fault_duration <= 0:
+            raise TryonError("give at least 1 --shoppers and positive --duration and --fault-duration (seconds)")
+        quick = args.quick
+        run_serve_bench(args.json, shoppers=2 if quick else args.shoppers, duration_s=30 if quick else args.duration,
+                        fault_duration_s=30 if quick else args.fault_duration, workers=max(args.workers))
+        return 0
     if args.what == "body":
         from tryon.bench.body import run_body_bench
 
@@ -679,7 +689,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     b.add_argument("--grids", type=int, nargs="+", default=DEFAULT_GRIDS,
                    help="grid sizes (sim); the first one is the grid of the robustness runs (default 16)")
-    b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (parallel)")
+    b.add_argument("--workers", type=int, nargs="+", default=[1, 2],
+                   help="worker counts (parallel); serve: refinement workers (the largest given)")
+    b.add_argument("--shoppers", type=int, default=8, help="serve: concurrent shoppers")
+    b.add_argument("--duration", type=float, default=300.0, help="serve: seconds of load without a fault")
+    b.add_argument("--fault-duration", type=float, default=90.0,
+                   help="serve: seconds of load with a worker killed, then with the server restarted, halfway")
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged (learned: default "
                                   "the shipped model's held-out drapes); kdsm: the pose dataset; body: the photo "
                                   "dataset (default data/bodies-v1)")

@@ -42,10 +42,11 @@ from tryon.body.motion import morph_keyframes, smoothstep
 from tryon.body.pose import POSES, BodyPose, arm_pose, clear_thighs, posed_body
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
-from tryon.garment.drafts import GARMENTS, WAISTBAND_GARMENTS, draft, size_too_small
+from tryon.garment.drafts import GARMENTS, WAISTBAND_GARMENTS, draft
 from tryon.drape.dress import DressedGarment, cloth_on_body, dress_cached
 from tryon.garment.prints import PRINT_WIDTH, GraphicPrint
 from tryon.garment.sizes import SIZES, size_measurements
+from tryon.sizing.chart import larger_sizes_that_close, too_small_for
 
 log = logging.getLogger(__name__)
 
@@ -445,10 +446,9 @@ def check_size_fits(request: DrapeRequest, person: BodyFit) -> None:
     if request.size is None or request.garment_obj is not None or request.allow_tight:
         return
     size = request.size.upper()
-    why = size_too_small(request.garment, size, size_measurements(size, request.body.gender), person.achieved)
+    why = too_small_for(request.garment, size, request.body.gender, person.achieved)
     if why is not None:
-        bigger = [s for s in SIZES[SIZES.index(size) + 1:]
-                  if size_too_small(request.garment, s, size_measurements(s, request.body.gender), person.achieved) is None]
+        bigger = larger_sizes_that_close(request.garment, size, request.body.gender, person.achieved)
         hint = f"try size {bigger[0]}" if bigger else "no standard size is large enough: use --size made-to-measure"
         raise TryonError(f"{why}; {hint} (or --allow-tight to drape it anyway and see the strain)")
 

@@ -41,10 +41,3 @@ def size_measurements(size: str, gender: str) -> dict[str, float]:
     }
 
 
-def size_for_chest(chest_cm: float, gender: str) -> str | None:
-    """The letter whose chest interval holds chest_cm, or None outside the chart."""
-    for name, row in size_chart()[gender].items():
-        lo, hi = row["chest_cm"]
-        if lo <= chest_cm < hi:
-            return name
-    return None

@@ -12,6 +12,7 @@ import asyncio
 import re
 import secrets
 import shutil
+import threading
 import time
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -28,7 +29,8 @@ from tryon.errors import TryonError
 from tryon.garment.drafts import GARMENTS
 from tryon.garment.sizes import SIZES
 from tryon.serve.dispatch import Dispatcher
-from tryon.serve.jobs import fit_folder
+from tryon.serve.bodies import save_body
+from tryon.serve.jobs import body_path, first_phase, fit_folder
 from tryon.serve.store import DONE, Store, new_id
 
 API_VERSION = "v1"
@@ -45,6 +47,8 @@ class Settings:
     time_limit_s: float = 600.0
     retention_s: float = 24 * 3600.0
     token: str | None = None
+    answer_workers: int = 1
+    ray_address: str | None = None
 
 
 class BodyIn(BaseModel):
@@ -92,7 +96,7 @@ def _fit_view(store: Store, fit_id: str) -> dict:
            "garment": row.request["garment"], "fabric": row.request["fabric"], "recommended": None, "reasons": [],
            "sizes": []}
     if row.result:
-        out.update({k: row.result[k] for k in ("recommended", "reasons", "sizes", "method") if k in row.result})
+        out.update({k: row.result[k] for k in ("recommended", "reasons", "sizes", "method", "notes", "timings") if k in row.result})
     if row.status == "failed":
         out["reason"] = row.reason
     return out
@@ -101,13 +105,19 @@ def _fit_view(store: Store, fit_id: str) -> dict:
 def create_app(settings: Settings) -> FastAPI:
     settings.data.mkdir(parents=True, exist_ok=True)
     store = Store(settings.data / "tryon.sqlite")
-    dispatcher = Dispatcher(store, settings.data, settings.workers, settings.time_limit_s, settings.retention_s)
+    dispatcher = Dispatcher(store, settings.data, settings.workers, settings.time_limit_s, settings.retention_s,
+                            settings.answer_workers, settings.ray_address)
     started = time.time()
+    ready = threading.Event()  # set once the body model is loaded (GET /health says `ready`)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         app.state.recovered = store.recover()
         dispatcher.start()
+        if settings.workers > 0:  # the body model loaded before the first shopper waits for it
+            threading.Thread(target=_warm_up_bodies, args=(ready,), name="tryon-warm-up", daemon=True).start()
+        else:
+            ready.set()
         yield
         dispatcher.close()
 
@@ -129,37 +139,46 @@ def create_app(settings: Settings) -> FastAPI:
         problems = [f"{'.'.join(str(p) for p in e['loc'] if p != 'body') or 'body'}: {e['msg']}" for e in exc.errors()]
         return JSONResponse({"detail": "; ".join(problems)}, status_code=422)
 
-    def _idempotent(key: str | None, route: str) -> dict | None:
-        if key is None:
-            return None
-        if len(key) > 128:
-            raise HTTPException(422, "Idempotency-Key: at most 128 characters")
-        seen = store.remembered(key, route)
-        if seen and "conflict" in seen:
-            raise HTTPException(409, f"Idempotency-Key {key!r} was used for {seen['conflict']}")
-        return seen
+    async def _once(key: str | None, route: str, make) -> dict:
+        """`await make()`'s response, or the response given before to a POST with the
+        same `Idempotency-Key` (409 when the key was used on the other route)."""
+        if key is not None:
+            if len(key) > 128:
+                raise HTTPException(422, "Idempotency-Key: at most 128 characters")
+            seen = store.remembered(key, route)
+            if seen and "conflict" in seen:
+                raise HTTPException(409, f"Idempotency-Key {key!r} was used for {seen['conflict']}")
+            if seen:
+                return seen
+        response = await make()
+        if key is not None:
+            store.remember(key, route, response)
+        return response
+
+    def _keep_body(fit, request: dict, result: dict) -> dict:
+        """A fitted body stored for its fits; the API's answer."""
+        body_id = new_id("body")
+        save_body(fit, body_path(settings.data, body_id))
+        store.add_body(request, result, body_id)
+        return {"body_id": body_id, **result}
 
     @app.post(f"/{API_VERSION}/bodies")
     async def post_body(body: BodyIn, idempotency_key: str | None = Header(None)) -> dict:
         """The shopper's body: measurements of the fitted Anny body, and warnings."""
-        seen = _idempotent(idempotency_key, "bodies")
-        if seen:
-            return seen
-        from tryon.body.fit import Measurements
+        async def make() -> dict:
+            from tryon.body.fit import Measurements
 
-        request = body.model_dump(exclude_none=True)
-        try:
-            m = Measurements(**request)
-            m.validate()
-            fit = await run_in_threadpool(_quick_fit, m)
-        except TryonError as exc:
-            raise HTTPException(422, str(exc)) from exc
-        result = {"measurements": {k: round(v, 2) for k, v in fit.achieved.items()}, "warnings": list(fit.notes),
-                  "fit_s": round(fit.wall_s, 3)}
-        response = {"body_id": store.add_body(request, result), **result}
-        if idempotency_key:
-            store.remember(idempotency_key, "bodies", response)
-        return response
+            request = body.model_dump(exclude_none=True)
+            try:
+                m = Measurements(**request)
+                m.validate()
+                fit = await run_in_threadpool(_quick_fit, m)
+            except TryonError as exc:
+                raise HTTPException(422, str(exc)) from exc
+            return _keep_body(fit, request, {"measurements": {k: round(v, 2) for k, v in fit.achieved.items()},
+                                             "warnings": list(fit.notes), "fit_s": round(fit.wall_s, 3)})
+
+        return await _once(idempotency_key, "bodies", make)
 
     @app.post(f"/{API_VERSION}/bodies/photos")
     async def post_body_photos(photos: list[UploadFile] = File(...), height_cm: float = Form(..., ge=140, le=210),
@@ -169,50 +188,44 @@ def create_app(settings: Settings) -> FastAPI:
         """The shopper's body from 1-4 photos (front, side, back; JPEG, PNG or WebP, at most
         10 MB each) with their height and gender (weight optional): measurements read off
         the photos, each with its spread."""
-        seen = _idempotent(idempotency_key, "bodies")
-        if seen:
-            return seen
-        if not 1 <= len(photos) <= MAX_PHOTOS:
-            raise HTTPException(422, f"photos: give 1 to {MAX_PHOTOS} photos, got {len(photos)}")
-        folder = settings.data / "uploads" / new_id("up")
-        paths: list[Path] = []
-        try:
-            for i, photo in enumerate(photos):
-                paths.append(await _save_upload(photo, folder, i))
-            pb = await run_in_threadpool(_photo_body, paths, height_cm, gender, weight_kg, age)
-        except TryonError as exc:  # named by the shopper's file names, never the server's paths
-            message = str(exc)
-            for i, (path, photo) in enumerate(zip(paths, photos)):
-                message = message.replace(str(path), f"photo {i + 1} ({photo.filename})")
-            raise HTTPException(422, message.replace(str(folder), "upload")) from exc
-        finally:
-            shutil.rmtree(folder, ignore_errors=True)  # photos are not kept
-        request = {k: v for k, v in vars(pb.request()).items() if v is not None}
-        result = {"measurements": pb.measurements(), "warnings": list(pb.notes),
-                  "fit_s": round(pb.timings["total_s"], 3), "source": f"{len(paths)} photo(s)"}
-        response = {"body_id": store.add_body(request, result), **result}
-        if idempotency_key:
-            store.remember(idempotency_key, "bodies", response)
-        return response
+        async def make() -> dict:
+            if not 1 <= len(photos) <= MAX_PHOTOS:
+                raise HTTPException(422, f"photos: give 1 to {MAX_PHOTOS} photos, got {len(photos)}")
+            folder = settings.data / "uploads" / new_id("up")
+            paths: list[Path] = []
+            try:
+                for i, photo in enumerate(photos):
+                    paths.append(await _save_upload(photo, folder, i))
+                pb = await run_in_threadpool(_photo_body, paths, height_cm, gender, weight_kg, age)
+            except TryonError as exc:  # named by the shopper's file names, never the server's paths
+                message = str(exc)
+                for i, (path, photo) in enumerate(zip(paths, photos)):
+                    message = message.replace(str(path), f"photo {i + 1} ({photo.filename})")
+                raise HTTPException(422, message.replace(str(folder), "upload")) from exc
+            finally:
+                shutil.rmtree(folder, ignore_errors=True)  # photos are not kept
+            request = {k: v for k, v in vars(pb.request()).items() if v is not None}
+            return _keep_body(pb.fit, request, {"measurements": pb.measurements(), "warnings": list(pb.notes),
+                                                "fit_s": round(pb.timings["total_s"], 3),
+                                                "source": f"{len(paths)} photo(s)"})
+
+        return await _once(idempotency_key, "bodies", make)
 
     @app.post(f"/{API_VERSION}/fits", status_code=202)
-    async def post_fit(fit: FitIn, idempotency_key: str | None = Header(None)):
+    async def post_fit(fit: FitIn, idempotency_key: str | None = Header(None)) -> dict:
         """Every size of a garment on a body: answers at once with the fit's id; follow it
         with GET /v1/fits/{fit_id}."""
-        seen = _idempotent(idempotency_key, "fits")
-        if seen:
-            return JSONResponse(seen, status_code=202)
-        if store.body(fit.body_id) is None:
-            raise HTTPException(404, f"no body {fit.body_id}; make one with POST /{API_VERSION}/bodies")
-        if store.waiting() >= settings.max_queue:
-            return JSONResponse({"detail": f"the queue is full ({settings.max_queue} fits waiting); try again shortly"},
-                                status_code=429, headers={"Retry-After": "5"})
-        fit_id = store.add_fit(fit.body_id, fit.model_dump())
-        response = {"fit_id": fit_id, "body_id": fit.body_id, "status": "queued", "progress": 0.0,
-                    "recommended": None, "sizes": []}
-        if idempotency_key:
-            store.remember(idempotency_key, "fits", response)
-        return JSONResponse(response, status_code=202)
+        async def make() -> dict:
+            if store.body(fit.body_id) is None:
+                raise HTTPException(404, f"no body {fit.body_id}; make one with POST /{API_VERSION}/bodies")
+            if store.waiting() >= settings.max_queue:
+                raise HTTPException(429, f"the queue is full ({settings.max_queue} fits waiting); try again shortly",
+                                    headers={"Retry-After": "5"})
+            fit_id = store.add_fit(fit.body_id, fit.model_dump(), first_phase(fit.garment))
+            return {"fit_id": fit_id, "body_id": fit.body_id, "status": "queued", "progress": 0.0, "recommended": None,
+                    "sizes": []}
+
+        return await _once(idempotency_key, "fits", make)
 
     @app.get(f"/{API_VERSION}/fits/{{fit_id}}")
     async def get_fit(fit_id: str, wait: float = Query(0.0, ge=0, le=30),
@@ -262,7 +275,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/health")
     async def health() -> dict:
-        return {"ok": True, "workers": settings.workers, "waiting": store.waiting()}
+        return {"ok": True, "ready": ready.is_set(), "workers": settings.workers, "waiting": store.waiting()}
 
     @app.get("/metrics")
     async def metrics() -> dict:
@@ -274,7 +287,7 @@ def create_app(settings: Settings) -> FastAPI:
 
 
 # the page's files: its own, and three.js from the viewer's
-STATIC = {"page.js": "tryon.serve", "three-bundle.min.js": "tryon.viewer"}
+STATIC = {"page.js": "tryon.serve", "meshes.js": "tryon.viewer", "three-bundle.min.js": "tryon.viewer"}
 
 
 def _static(name: str) -> Path:
@@ -307,6 +320,17 @@ def _photo_body(paths, height_cm, gender, weight_kg, age):
     from tryon.learn.body_from_photos import body_from_image_files
 
     return body_from_image_files([str(p) for p in paths], height_cm, gender, weight_kg, age)
+
+
+def _warm_up_bodies(ready: threading.Event) -> None:
+    from tryon.body.fit import Measurements
+
+    try:
+        _quick_fit(Measurements(height_cm=170.0, weight_kg=65.0, gender="female"))
+    except Exception:  # noqa: BLE001 - a real request will report what is wrong
+        pass
+    finally:
+        ready.set()
 
 
 def _quick_fit(m):

@@ -1,9 +1,17 @@
-"""The dispatcher: a thread in the server that hands queued fits to a pool of worker
-processes, and keeps every job accounted for when a worker dies or a job runs too long.
+"""The dispatcher: a thread in the server that hands the fits' phases to workers, and
+keeps every job accounted for when a worker dies or a job runs too long.
 
-A worker that dies (killed, out of memory) breaks its pool: every job the pool held goes
-back to the queue (`Store.requeue_or_fail`) and a fresh pool starts. A job past the time
-limit is failed with that reason and its pool is replaced, which stops it.
+Two lanes, so a first answer never waits behind a refinement:
+- the answer lane (`answer` phases: a fraction of a second each) at normal priority;
+- the work lane (`refine` and `simulate`: seconds to minutes) at a lower priority
+  (`jobs.REFINE_NICENESS`), so it takes only the processor time the answers leave.
+
+Each lane's workers are local processes (spawned), or Ray tasks on an existing cluster
+(`--ray-address`; the cluster's nodes must see `--data`, e.g. the same machine or a
+shared disk). A local worker that dies (killed, out of memory) breaks its pool: every job
+the pool held goes back to its queue (`Store.requeue_or_fail`) and a fresh pool starts; a
+Ray task whose worker dies is queued again the same way. A job past the time limit fails
+with that reason and is stopped (its local pool replaced, or its Ray task cancelled).
 """
 
 from __future__ import annotations
@@ -16,123 +24,251 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
-from tryon.serve.jobs import fit_folder, run_fit
+from tryon.serve.jobs import REFINE_NICENESS, body_path, fit_folder, run_phase
 from tryon.serve.store import Store
 
-POLL_S = 0.05
+POLL_S = 0.02
 PRUNE_EVERY_S = 60.0
+ANSWER_TIME_LIMIT_S = 120.0
 
 
-def _warm_up() -> None:
-    """Run in each new worker: import what a fit needs before the first job arrives."""
-    import tryon.body.amortised  # noqa: F401
-    import tryon.learn.size  # noqa: F401
+def _warm_up(niceness: int) -> None:
+    """Run in each new local worker: one thread (the workers share the cores; threads of
+    one worker that wait on each other spin when it gets less than their count), a lower
+    priority if asked, and what a phase needs imported and loaded before the first job."""
+    import os
+
+    from tryon.parallel.executors import one_thread_per_worker
+
+    one_thread_per_worker()
+
+    if niceness:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, niceness)
+        except (AttributeError, OSError):
+            pass
+    import tryon.serve.jobs  # noqa: F401
+    from tryon.body.anny_model import body_model
+    from tryon.sizing.quick import shipped_model
+
+    body_model()
+    try:
+        shipped_model("tshirt")
+    except Exception:  # noqa: BLE001 - a missing model is reported by the job that needs it
+        pass
 
 
-class Dispatcher:
-    def __init__(self, store: Store, data: Path, workers: int, time_limit_s: float, retention_s: float):
-        self.store, self.data, self.workers = store, data, workers
-        self.time_limit_s, self.retention_s = time_limit_s, retention_s
-        self.running: dict[str, tuple[Future, float]] = {}
-        self.pool: ProcessPoolExecutor | None = None
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._loop, name="tryon-dispatch", daemon=True)
-        self.events = {"worker_restarts": 0, "timeouts": 0, "requeued": 0}
+class LocalWorkers:
+    """A pool of spawned worker processes."""
 
-    def start(self) -> None:
-        if self.workers > 0:
-            self.pool = self._new_pool()
-            self.thread.start()
+    def __init__(self, workers: int, niceness: int):
+        self.workers, self.niceness = workers, niceness
+        self.pool = self._new()
+
+    def _new(self) -> ProcessPoolExecutor:
+        pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_warm_up,
+                                   initargs=(self.niceness,))
+        for _ in range(self.workers):  # the pool starts a process per job: start them all now, warmed up
+            pool.submit(time.sleep, 0.2)
+        return pool
+
+    def submit(self, *args) -> Future:
+        return self.pool.submit(run_phase, *args)
+
+    def stop(self, futures: list[Future]) -> bool:
+        """Stop these jobs; True when every other job of the pool was stopped with them."""
+        self.restart()
+        return True
+
+    def forget(self, fut: Future) -> None:
+        pass
+
+    def restart(self) -> None:
+        self.close()
+        self.pool = self._new()
 
     def close(self) -> None:
-        self.stop.set()
-        if self.thread.is_alive():
-            self.thread.join(timeout=5.0)
-        if self.pool is not None:
-            self._kill_pool(self.pool)
-        # the jobs cut off here go back to the queue for the next start
-        for fit_id in list(self.running):
-            self.store.requeue_or_fail(fit_id, "the server stopped while it ran")
-        self.running.clear()
+        for p in list((getattr(self.pool, "_processes", None) or {}).values()):
+            p.kill()
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
-    def worker_pids(self) -> list[int]:
+    def pids(self) -> list[int]:
         return [p.pid for p in (getattr(self.pool, "_processes", None) or {}).values()]
 
-    def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_warm_up)
 
-    @staticmethod
-    def _kill_pool(pool: ProcessPoolExecutor) -> None:
-        for p in list((getattr(pool, "_processes", None) or {}).values()):
-            p.kill()
-        pool.shutdown(wait=False, cancel_futures=True)
+class RayWorkers:
+    """Ray tasks (one CPU each) on the cluster the server joined."""
 
-    def _loop(self) -> None:
-        last_prune = 0.0
-        while not self.stop.is_set():
-            try:
-                self._collect()
-                self._enforce_time_limit()
-                self._fill()
-                if time.time() - last_prune > PRUNE_EVERY_S:
-                    self._prune()
-                    last_prune = time.time()
-            except Exception:  # noqa: BLE001 - the loop must outlive any one job's trouble
-                time.sleep(0.5)
-            self.stop.wait(POLL_S)
+    def __init__(self, workers: int, niceness: int):
+        import ray
 
-    def _fill(self) -> None:
-        while len(self.running) < self.workers:
-            fit_id = self.store.claim_next()
-            if fit_id is None:
+        self.workers, self.refs = workers, {}
+        self.task = ray.remote(num_cpus=1, max_retries=0)(run_phase)
+
+    def submit(self, *args) -> Future:
+        ref = self.task.remote(*args)
+        fut = ref.future()
+        self.refs[fut] = ref
+        return fut
+
+    def stop(self, futures: list[Future]) -> bool:
+        import ray
+
+        for fut in futures:
+            ref = self.refs.pop(fut, None)
+            if ref is not None:
+                ray.cancel(ref, force=True)
+        return False
+
+    def forget(self, fut: Future) -> None:
+        self.refs.pop(fut, None)
+
+    def restart(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self.stop(list(self.refs))
+
+    def pids(self) -> list[int]:
+        return []
+
+
+class Lane:
+    """Workers that run some phases, and the jobs they hold."""
+
+    def __init__(self, name: str, phases: tuple[str, ...], workers, store: Store, data: Path, time_limit_s: float,
+                 events: dict):
+        self.name, self.phases, self.workers = name, phases, workers
+        self.store, self.data, self.time_limit_s, self.events = store, data, time_limit_s, events
+        self.running: dict[str, tuple[Future, float]] = {}
+
+    def fill(self) -> None:
+        while len(self.running) < self.workers.workers:
+            claimed = self.store.claim_next(self.phases)
+            if claimed is None:
                 return
+            fit_id, phase = claimed
             try:
-                fut = self.pool.submit(run_fit, str(self.store.path), str(self.data), fit_id)
+                fut = self.workers.submit(str(self.store.path), str(self.data), fit_id, phase)
             except (BrokenProcessPool, RuntimeError):
                 self.store.requeue_or_fail(fit_id, "a worker process died")
-                self._restart_pool()
+                self.restart()
                 return
             self.running[fit_id] = (fut, time.time())
 
-    def _collect(self) -> None:
+    def collect(self) -> None:
         broken = False
         for fit_id, (fut, _) in list(self.running.items()):
             if not fut.done():
                 continue
             del self.running[fit_id]
+            self.workers.forget(fut)
             exc = fut.exception()
-            if isinstance(exc, BrokenProcessPool):
-                broken = True
-                self.events["requeued"] += 1
-                self.store.requeue_or_fail(fit_id, "a worker process died while it ran")
-            elif exc is not None:
-                self.store.update(fit_id, "failed", 1.0, reason=f"internal error: {type(exc).__name__}: {exc}"[:500])
+            if exc is None:
+                continue
+            # run_phase catches the job's own errors: anything raised here is the worker's end
+            self.events["requeued"] += 1
+            broken = broken or isinstance(exc, BrokenProcessPool)
+            self.store.requeue_or_fail(fit_id, f"a worker process died while it ran ({type(exc).__name__})")
         if broken:
-            self._restart_pool()
+            self.restart()
 
-    def _enforce_time_limit(self) -> None:
+    def enforce_time_limit(self) -> None:
         late = [f for f, (_, t0) in self.running.items() if time.time() - t0 > self.time_limit_s]
         if not late:
             return
         for fit_id in late:
             self.events["timeouts"] += 1
             self.store.update(fit_id, "failed", 1.0, reason=f"took longer than the {self.time_limit_s:.0f} s limit")
-            del self.running[fit_id]
-        for fit_id in list(self.running):  # the others in the replaced pool start again
-            self.store.requeue_or_fail(fit_id, "its worker pool was replaced")
-            del self.running[fit_id]
-        self._restart_pool()
+        if self.workers.stop([self.running[f][0] for f in late]):  # the others stopped with them start again
+            for fit_id in list(self.running):
+                if fit_id not in late:
+                    self.store.requeue_or_fail(fit_id, "its worker pool was replaced")
+            self.running.clear()
+        for fit_id in late:
+            self.running.pop(fit_id, None)
 
-    def _restart_pool(self) -> None:
+    def restart(self) -> None:
         self.events["worker_restarts"] += 1
-        for fit_id in list(self.running):
-            fut, _ = self.running[fit_id]
+        for fit_id, (fut, _) in list(self.running.items()):
             if not fut.done():
                 self.store.requeue_or_fail(fit_id, "a worker process died while it ran")
-            del self.running[fit_id]
-        self._kill_pool(self.pool)
-        self.pool = self._new_pool()
+        self.running.clear()
+        self.workers.restart()
+
+    def close(self) -> None:
+        self.workers.close()
+        for fit_id in list(self.running):  # cut off here: claimable again at the next start
+            self.store.requeue_or_fail(fit_id, "the server stopped while it ran")
+        self.running.clear()
+
+
+class Dispatcher:
+    def __init__(self, store: Store, data: Path, workers: int, time_limit_s: float, retention_s: float,
+                 answer_workers: int = 1, ray_address: str | None = None):
+        self.store, self.data, self.workers = store, data, workers
+        self.answer_workers, self.ray_address = answer_workers, ray_address
+        self.time_limit_s, self.retention_s = time_limit_s, retention_s
+        self.lanes: list[Lane] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, name="tryon-dispatch", daemon=True)
+        self.events = {"worker_restarts": 0, "timeouts": 0, "requeued": 0}
+        self._ray_started = False
+
+    def start(self) -> None:
+        if self.workers <= 0:
+            return
+        kind = LocalWorkers
+        if self.ray_address:
+            from tryon.parallel.executors import connect_ray, ray_is_initialized
+
+            joined_before = ray_is_initialized()
+            connect_ray(self.ray_address, self.workers + self.answer_workers)
+            self._ray_started = not joined_before
+            kind = RayWorkers
+        self.lanes = [
+            Lane("answer", ("answer",), kind(self.answer_workers, 0), self.store, self.data,
+                 min(self.time_limit_s, ANSWER_TIME_LIMIT_S), self.events),
+            Lane("work", ("refine", "simulate"), kind(self.workers, REFINE_NICENESS), self.store, self.data,
+                 self.time_limit_s, self.events),
+        ]
+        self.thread.start()
+
+    def close(self) -> None:
+        self.stop.set()
+        if self.thread.is_alive():
+            self.thread.join(timeout=5.0)
+        for lane in self.lanes:
+            lane.close()
+        if self._ray_started:
+            import ray
+
+            ray.shutdown()
+
+    def worker_pids(self) -> dict[str, list[int]]:
+        return {lane.name: lane.workers.pids() for lane in self.lanes}
+
+    def _loop(self) -> None:
+        last_prune = 0.0
+        while not self.stop.is_set():
+            for lane in self.lanes:
+                try:
+                    lane.collect()
+                    lane.enforce_time_limit()
+                    lane.fill()
+                except Exception:  # noqa: BLE001 - the loop must outlive any one job's trouble
+                    time.sleep(0.5)
+            if time.time() - last_prune > PRUNE_EVERY_S:
+                self._prune()
+                last_prune = time.time()
+            self.stop.wait(POLL_S)
 
     def _prune(self) -> None:
-        for fit_id in self.store.prune(self.retention_s):
+        try:
+            fits, bodies = self.store.prune(self.retention_s)
+        except Exception:  # noqa: BLE001 - a busy database: next time
+            return
+        for fit_id in fits:
             shutil.rmtree(fit_folder(self.data, fit_id), ignore_errors=True)
+        for body_id in bodies:
+            body_path(self.data, body_id).unlink(missing_ok=True)

@@ -1,7 +1,15 @@
-"""What a worker process does with one fit: the body, then every size draped and judged,
-each answer written to the store as it comes (`predicted`, then `refined`; `simulated`
-for garments without a learned model), with a fit map PNG and a GLB per size under
-`<data>/fits/<fit_id>/`."""
+"""What a worker process does with one phase of a fit (`tryon.serve.store.PHASES`),
+each answer written to the store as it comes, with the files the page and the API serve
+under `<data>/fits/<fit_id>/`:
+
+- `answer`: every size predicted and judged (`tryon.sizing.quick.first_answer`), the
+  recommendation and, per size, the scene the page draws; status `predicted`.
+- `refine`: the sizes that decide refined by the simulator (`refine_decisive`), each with
+  its fit map PNG, GLB and scene; status `refined`.
+- `simulate` (garments without a learned model): every size simulated, status `simulated`.
+
+The body is the one fitted when it was posted (`bodies.load_body`), never fitted again.
+"""
 
 from __future__ import annotations
 
@@ -12,25 +20,27 @@ from pathlib import Path
 
 import numpy as np
 
+from tryon.serve.bodies import load_body
+from tryon.serve.scene import SceneArrays, write_scene
 from tryon.serve.store import Store
 
 # sizes simulated when a garment has no learned model and the request names none
 SIMULATED_SIZES = ("S", "M", "L", "XL")
+# a refinement worker yields the processor to first answers (nice value, 0-19)
+REFINE_NICENESS = 10
 
 
 def fit_folder(data: Path, fit_id: str) -> Path:
     return data / "fits" / fit_id
 
 
+def body_path(data: Path, body_id: str) -> Path:
+    return data / "bodies" / f"{body_id}.pkl"
+
+
 @lru_cache(maxsize=64)
-def _body(request_json: str):
-    """The body of a request, fitted once per worker (the quick fit)."""
-    import json
-
-    from tryon.body.amortised import quick_fit
-    from tryon.body.fit import Measurements
-
-    return quick_fit(Measurements(**json.loads(request_json)))
+def _person(path: str):
+    return load_body(path)
 
 
 def learned_garment(garment: str) -> bool:
@@ -39,26 +49,26 @@ def learned_garment(garment: str) -> bool:
     return shipped_model_path(garment).is_file()
 
 
-def run_fit(db: str, data: str, fit_id: str) -> str:
-    """Run fit `fit_id` to its end; returns its last status. Any error becomes `failed`
-    with the error's message (a worker that dies is caught by the dispatcher)."""
-    import json
+def first_phase(garment: str) -> str:
+    return "answer" if learned_garment(garment) else "simulate"
 
+
+def run_phase(db: str, data: str, fit_id: str, phase: str) -> str:
+    """Run one phase of fit `fit_id`; returns the fit's status after it. Any error fails
+    the fit with the error's message (a worker that dies is caught by the dispatcher)."""
     from tryon.errors import TryonError
     from tryon.io.threads import one_torch_thread
+    from tryon.parallel.executors import one_thread_per_worker
 
+    one_thread_per_worker()  # a Ray worker's too
     store = Store(db)
     row = store.fit(fit_id)
     body_request, _ = store.body(row.body_id)
-    req = row.request
     try:
         with one_torch_thread():
-            person = _body(json.dumps(body_request, sort_keys=True))
-            store.update(fit_id, "running", 0.1)
-            if learned_garment(req["garment"]):
-                _answer(store, data, fit_id, body_request, req, person, refine=False, status="predicted", progress=0.3)
-                return _answer(store, data, fit_id, body_request, req, person, refine=True, status="refined")
-            return _answer(store, data, fit_id, body_request, req, person, refine=False, status="simulated")
+            person = _person(str(body_path(Path(data), row.body_id)))
+            run = {"answer": _answer, "refine": _refine, "simulate": _simulate}[phase]
+            return run(store, Path(data), fit_id, body_request, row.request, person)
     except TryonError as exc:
         store.update(fit_id, "failed", 1.0, reason=str(exc)[:500])
         return "failed"
@@ -67,52 +77,113 @@ def run_fit(db: str, data: str, fit_id: str) -> str:
         return "failed"
 
 
-def _answer(store: Store, data: str, fit_id: str, body_request: dict, req: dict, person, refine: bool, status: str,
-            progress: float = 1.0) -> str:
-    from tryon.body.fit import Measurements
-    from tryon.learn.size import size_recommendation
+def _first(body_request: dict, req: dict, person):
+    from tryon.sizing.quick import first_answer
 
+    return first_answer(person, body_request["gender"], req["garment"], req.get("sizes"))
+
+
+def _answer(store: Store, data: Path, fit_id: str, body_request: dict, req: dict, person) -> str:
     t0 = time.perf_counter()
-    method = "learned" if status != "simulated" else "simulate"
-    sizes = req.get("sizes") or (None if method == "learned" else list(SIMULATED_SIZES))
+    first = _first(body_request, req, person)
+    folder = fit_folder(data, fit_id)
+    sizes = []
+    for p in first.sizes:
+        tag = f"{p.size}-predicted"
+        write_scene(folder, tag, SceneArrays(p.x, p.garment.faces, first.body.vertices, first.body.faces, p.strain,
+                                             None, p.skin_distance), req["fabric"])
+        sizes.append(dict(_size_entry(p.judged), scene_url=f"/v1/files/{fit_id}/{tag}-scene.json"))
+    result = {"recommended": first.recommended, "reasons": first.reasons, "method": "learned", "sizes": sizes,
+              "notes": first.notes, "timings": {"answer_s": round(time.perf_counter() - t0, 3)}}
+    store.update(fit_id, "predicted", 0.3, result=result)
+    store.next_phase(fit_id, "refine")
+    return "predicted"
+
+
+def _refine(store: Store, data: Path, fit_id: str, body_request: dict, req: dict, person) -> str:
+    from tryon.body.fit import Measurements
+    from tryon.drape.pipeline import DrapeRequest
+    from tryon.sizing.quick import refine_decisive
+
+    _lower_priority()
+    t0 = time.perf_counter()
+    first = _first(body_request, req, person)
+    folder = fit_folder(data, fit_id)
+    files: dict[str, dict] = {}
+    previous = store.fit(fit_id).result or {}
+
+    def on_refined(size: str, result) -> None:
+        files[size] = _write_size_files(fit_id, result, folder, f"{size}-refined")
+        store.update(fit_id, "predicted", min(0.95, 0.3 + 0.3 * len(files)), result=previous)
+
+    request = DrapeRequest(Measurements(**body_request), garment=req["garment"], fabric=req["fabric"])
+    best, reasons, judged, _ = refine_decisive(first, person, request, on_refined=on_refined)
+    sizes = []
+    for j in judged:
+        entry = _size_entry(j)
+        entry.update(files.get(j["size"]) or {"scene_url": f"/v1/files/{fit_id}/{j['size']}-predicted-scene.json"})
+        sizes.append(entry)
+    timings = {**previous.get("timings", {}), "refine_s": round(time.perf_counter() - t0, 3),
+               "refined_sizes": len(files)}
+    store.update(fit_id, "refined", 1.0, result={"recommended": best, "reasons": reasons, "method": "learned+refine",
+                                                 "sizes": sizes, "notes": first.notes, "timings": timings})
+    return "refined"
+
+
+def _simulate(store: Store, data: Path, fit_id: str, body_request: dict, req: dict, person) -> str:
+    from tryon.body.fit import Measurements
+    from tryon.sizing.recommend import size_recommendation
+
+    _lower_priority()
+    t0 = time.perf_counter()
     rec, results = size_recommendation(Measurements(**body_request), garment=req["garment"], fabric=req["fabric"],
-                                       method=method, refine=refine, sizes=sizes, person=person)
-    folder = fit_folder(Path(data), fit_id)
-    result = {"recommended": rec["recommended"], "reasons": rec["reasons"], "method": rec["method"],
-              "sizes": [_size_entry(fit_id, j, r, folder, status) for j, r in zip(rec["sizes"], results)],
-              "wall_s": round(time.perf_counter() - t0, 3)}
-    store.update(fit_id, status, progress, result=result)
-    return status
+                                       method="simulate", sizes=req.get("sizes") or list(SIMULATED_SIZES),
+                                       person=person)
+    folder = fit_folder(data, fit_id)
+    sizes = []
+    for j, r in zip(rec["sizes"], results):
+        entry = _size_entry(j)
+        if not isinstance(r, str):  # a size the simulator could draw
+            entry.update(_write_size_files(fit_id, r, folder, f"{j['size']}-simulated"))
+        sizes.append(entry)
+    store.update(fit_id, "simulated", 1.0, result={"recommended": rec["recommended"], "reasons": rec["reasons"],
+                                                   "method": rec["method"], "sizes": sizes, "notes": rec["notes"],
+                                                   "timings": {"simulate_s": round(time.perf_counter() - t0, 3)}})
+    return "simulated"
+
+
+def _lower_priority() -> None:
+    import os
+
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, max(os.getpriority(os.PRIO_PROCESS, 0), REFINE_NICENESS))
+    except (AttributeError, OSError):  # not on this platform: the work runs at normal priority
+        pass
 
 
 def _number(x) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else round(float(x), 3)
 
 
-def _size_entry(fit_id: str, judged: dict, result, folder: Path, status: str) -> dict:
-    """What the API says of one size, with its files written."""
-    entry = {"size": judged["size"], "fits": bool(judged["fits"]), "why_not": judged["why_not"],
-             "ease_cm": _number(judged["torso_ease_cm"]), "overstretched_area_pct": _number(judged["overstrained_area_pct"]),
-             "max_strain_pct": _number(judged["max_strain_pct"]),
-             "judged_on": judged.get("judged_on", "refined drape" if status == "refined" else status)}
-    if isinstance(result, str):  # a size the simulator could not drape
-        return entry
+def _size_entry(judged: dict) -> dict:
+    """What the API says of one size's judgement."""
     regions = judged.get("regions", {})
     pressures = [r["mean_pressure_kpa"] for r in regions.values() if "mean_pressure_kpa" in r]
-    entry["pressure_kpa"] = _number(max(pressures)) if pressures else None
-    tag = f"{judged['size']}-{status}"
-    _write_size_files(result, folder, tag)
-    entry["fit_map_url"] = f"/v1/files/{fit_id}/{tag}-fit_map.png"
-    entry["glb_url"] = f"/v1/files/{fit_id}/{tag}.glb"
-    entry["scene_url"] = f"/v1/files/{fit_id}/{tag}-scene.json"
-    return entry
+    return {"size": judged["size"], "fits": bool(judged["fits"]), "why_not": judged["why_not"],
+            "ease_cm": _number(judged["torso_ease_cm"]), "overstretched_area_pct": _number(judged["overstrained_area_pct"]),
+            "max_strain_pct": _number(judged["max_strain_pct"]),
+            "pressure_kpa": _number(max(pressures)) if pressures else None,
+            "judged_on": judged.get("judged_on", "simulated drape"), "not_refined": judged.get("not_refined"),
+            "fit_map_url": None, "glb_url": None, "scene_url": None}
 
 
-def _write_size_files(result, folder: Path, tag: str) -> None:
+def _write_size_files(fit_id: str, result, folder: Path, tag: str) -> dict:
+    """A drape's fit map PNG, GLB and scene; their URLs."""
     from tryon.drape.outputs import SKIN, fit_map_image
     from tryon.io.mesh_io import write_glb
     from tryon.render.appearance import appearance
     from tryon.render.offscreen import save_png
+    from tryon.sim.collision import nearest_surface_points
 
     folder.mkdir(parents=True, exist_ok=True)
     g, bv, bf = result.garment, result.body_vertices, result.body_faces
@@ -121,38 +192,8 @@ def _write_size_files(result, folder: Path, tag: str) -> None:
                                                           vmax=max(10.0, float(np.percentile(strain, 99))), label="strain %"))
     write_glb(folder / f"{tag}.glb", [(bv, bf, SKIN, "body"),
                                       (result.x, g.faces, appearance(str(result.request.fabric)).color, "garment")])
-    _write_scene(result, folder, tag)
-
-
-def _write_scene(result, folder: Path, tag: str) -> None:
-    """What the page draws: `<tag>-scene.json` (layout, colours, scales) and
-    `<tag>-scene.bin` (little-endian float32 / uint32 arrays), with per garment vertex its
-    strain (%), contact pressure (kPa) and ease (cm: its distance to the skin)."""
-    from tryon.drape.outputs import SKIN, face_to_vertex
-    from tryon.io.atomic import atomic_write
-    from tryon.io.json_safe import dumps_json
-    from tryon.render.appearance import appearance
-    from tryon.sim.collision import nearest_surface_points
-
-    g, x = result.garment, np.asarray(result.x)
-    strain = face_to_vertex(g.faces, 100.0 * np.asarray(result.strain), len(x))
-    pressure = np.asarray(result.pressure) / 1000.0
-    ease = 100.0 * np.maximum(nearest_surface_points(x, result.body_vertices, result.body_faces)[0], 0.0)
-    arrays = [("garment_positions", x.astype("<f4")), ("garment_faces", g.faces.astype("<u4")),
-              ("body_positions", np.asarray(result.body_vertices).astype("<f4")),
-              ("body_faces", np.asarray(result.body_faces).astype("<u4")),
-              ("strain", strain.astype("<f4")), ("pressure", pressure.astype("<f4")), ("ease", ease.astype("<f4"))]
-    layout, offset = {}, 0
-    for name, a in arrays:
-        layout[name] = {"offset": offset, "count": int(a.size), "type": "uint32" if a.dtype.kind == "u" else "float32"}
-        offset += a.nbytes
-    meta = {"layout": layout, "bin": f"{tag}-scene.bin", "garment_vertices": len(x),
-            "colors": {"skin": list(SKIN), "cloth": list(appearance(str(result.request.fabric)).color)},
-            "scales": {"strain": float(max(10.0, np.percentile(strain, 99))),
-                       "pressure": float(max(0.5, np.percentile(pressure, 99))), "ease": 5.0},
-            "units": {"strain": "strain %", "pressure": "contact pressure kPa", "ease": "ease cm (gap to the skin)"}}
-    with atomic_write(folder / f"{tag}-scene.bin", "wb") as fh:
-        for _, a in arrays:
-            fh.write(np.ascontiguousarray(a).tobytes())
-    with atomic_write(folder / f"{tag}-scene.json") as fh:
-        fh.write(dumps_json(meta))
+    d, _, _ = nearest_surface_points(result.x, bv, bf)
+    write_scene(folder, tag, SceneArrays(result.x, g.faces, bv, bf, np.asarray(result.strain), np.asarray(result.pressure), d),
+                str(result.request.fabric))
+    return {"fit_map_url": f"/v1/files/{fit_id}/{tag}-fit_map.png", "glb_url": f"/v1/files/{fit_id}/{tag}.glb",
+            "scene_url": f"/v1/files/{fit_id}/{tag}-scene.json"}

@@ -26,7 +26,7 @@ from tryon.io.atomic import atomic_output_dir, atomic_write
 from tryon.io.json_safe import dumps_json
 from tryon.render.appearance import appearance
 
-STATIC_FILES = ("index.html", "viewer.js", "three-bundle.min.js", "LICENSE-three.txt")
+STATIC_FILES = ("index.html", "viewer.js", "meshes.js", "three-bundle.min.js", "LICENSE-three.txt")
 SKIN = (0.80, 0.68, 0.60)
 
 

@@ -1,9 +1,11 @@
-// The shopper's page: a body from height, weight and gender, every size of a garment
-// draped on it (POST /v1/bodies, POST /v1/fits, GET /v1/fits/{id}?wait=...), the
+// The shopper's page: a body from height, weight and gender (or from 1-4 photos with the
+// height: POST /v1/bodies/photos), every size of a garment draped on it (POST /v1/bodies,
+// POST /v1/fits, GET /v1/fits/{id}?wait=...), the
 // recommended size with its reason, and each size in 3D coloured by strain, ease or
 // contact pressure. URL parameters fill the form (height_cm, weight_kg, gender, garment,
 // fabric); auto=1 submits it, mode=strain|ease|pressure picks the colouring.
 import * as THREE from '/static/three-bundle.min.js';
+import { makeMesh, toLinear, turbo } from '/static/meshes.js';
 
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
@@ -11,15 +13,6 @@ const status = (text) => { $('status').textContent = text; };
 const MODES = { strain: 'strain', ease: 'ease', pressure: 'pressure' };
 let mode = MODES[params.get('mode')] || 'strain';
 let fit = null, shown = null, viewer = null, drawnOnce = false;
-
-function turbo(t) {  // Turbo colour map (Mikhailov 2019), polynomial approximation
-  t = Math.min(1, Math.max(0, t));
-  const r = 0.13572138 + t * (4.61539260 + t * (-42.66032258 + t * (132.13108234 + t * (-152.94239396 + t * 59.28637943))));
-  const g = 0.09140261 + t * (2.19418839 + t * (4.84296658 + t * (-14.18503333 + t * (4.27729857 + t * 2.82956604))));
-  const b = 0.10667330 + t * (12.64194608 + t * (-60.58204836 + t * (110.36276771 + t * (-89.90310912 + t * 27.34824973))));
-  return [r, g, b].map((c) => Math.min(1, Math.max(0, c)));
-}
-const toLinear = (rgb) => rgb.map((c) => (c <= 0.04045 ? c / 12.92 : Math.pow((c + 0.055) / 1.055, 2.4)));
 
 async function api(path, body) {
   const r = await fetch(path, body ? { method: 'POST', headers: { 'content-type': 'application/json' }, body: JSON.stringify(body) } : {});
@@ -63,21 +56,13 @@ function makeViewer() {
   return v;
 }
 
-function mesh(positions, faces, color, vertexColors) {
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
-  geometry.setIndex(new THREE.BufferAttribute(faces, 1));
-  if (vertexColors) geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(positions.length), 3));
-  geometry.computeVertexNormals();
-  return new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({
-    color: new THREE.Color().setRGB(...color, THREE.SRGBColorSpace), roughness: 0.8, metalness: 0,
-    side: vertexColors ? THREE.DoubleSide : THREE.FrontSide, vertexColors: !!vertexColors }));
-}
-
 async function loadScene(url) {
   const meta = await (await fetch(url)).json();
   const buffer = await (await fetch(url.replace(/[^/]*$/, meta.bin))).arrayBuffer();
-  const arr = (name) => { const s = meta.layout[name]; return new (s.type === 'uint32' ? Uint32Array : Float32Array)(buffer, s.offset, s.count); };
+  const arr = (name) => {
+    const s = meta.layout[name];
+    return s ? new (s.type === 'uint32' ? Uint32Array : Float32Array)(buffer, s.offset, s.count) : null;
+  };
   return { meta, garment: [arr('garment_positions'), arr('garment_faces')], body: [arr('body_positions'), arr('body_faces')],
            values: { strain: arr('strain'), pressure: arr('pressure'), ease: arr('ease') } };
 }
@@ -85,9 +70,17 @@ async function loadScene(url) {
 function colour(s) {
   const max = s.meta.scales[mode], values = s.values[mode];
   const out = s.garmentMesh.geometry.getAttribute('color');
+  const stops = [...Array(11).keys()].map((i) => `rgb(${turbo(i / 10).map((x) => Math.round(255 * x))})`);
+  if (!values) {  // a prediction has no contact pressure until the simulator refines it
+    const plain = toLinear(s.meta.colors.cloth);
+    for (let i = 0; i < out.count; i++) out.array.set(plain, 3 * i);
+    out.needsUpdate = true;
+    $('legend').querySelector('.bar').style.background = 'none';
+    $('legend').querySelector('.ticks').textContent = `${s.meta.units[mode]}: shown once this size is refined`;
+    return;
+  }
   for (let i = 0; i < values.length; i++) out.array.set(toLinear(turbo(values[i] / max)), 3 * i);
   out.needsUpdate = true;
-  const stops = [...Array(11).keys()].map((i) => `rgb(${turbo(i / 10).map((x) => Math.round(255 * x))})`);
   $('legend').querySelector('.bar').style.background = `linear-gradient(to right, ${stops.join(',')})`;
   $('legend').querySelector('.ticks').textContent = `${s.meta.units[mode]}: 0 to ${max.toFixed(max >= 10 ? 0 : 1)}`;
 }
@@ -107,8 +100,8 @@ async function showSize(entry) {
   viewer = viewer || makeViewer();
   const s = await loadScene(entry.scene_url);
   for (const m of viewer.meshes) viewer.scene.remove(m);
-  const body = mesh(s.body[0], s.body[1], s.meta.colors.skin, false);
-  s.garmentMesh = mesh(s.garment[0], s.garment[1], [1, 1, 1], true);
+  const body = makeMesh(s.body[0], s.body[1], s.meta.colors.skin, false);
+  s.garmentMesh = makeMesh(s.garment[0], s.garment[1], [1, 1, 1], true);
   viewer.meshes = [body, s.garmentMesh];
   viewer.scene.add(body, s.garmentMesh);
   if (!drawnOnce) {
@@ -145,7 +138,8 @@ function renderFit(view) {
   const refining = view.status === 'predicted' ? ' (refining…)' : '';
   $('recommended').textContent = `Your size: ${view.recommended}${refining}`;
   $('reason').textContent = view.reasons.join('; ');
-  $('sizes').innerHTML = view.sizes.map((s) => `<button type="button" data-size="${s.size}" class="${s.fits ? '' : 'nofit'}" title="${s.why_not.join('; ')}">${s.size}${s.ease_cm != null ? ` · ${s.ease_cm.toFixed(1)} cm` : ''}</button>`).join('');
+  const title = (s) => [...s.why_not, s.judged_on === 'prediction' ? 'predicted' + (s.not_refined ? `, not refined: ${s.not_refined}` : '') : s.judged_on].join('; ');
+  $('sizes').innerHTML = view.sizes.map((s) => `<button type="button" data-size="${s.size}" class="${s.fits ? '' : 'nofit'}" title="${title(s)}">${s.size}${s.ease_cm != null ? ` · ${s.ease_cm.toFixed(1)} cm` : ''}</button>`).join('');
   $('sizes').querySelectorAll('button').forEach((b) => b.addEventListener('click', () => showSize(view.sizes.find((s) => s.size === b.dataset.size))));
   const keep = shown && view.sizes.find((s) => s.size === document.querySelector('#sizes button.on')?.dataset.size);
   showSize(keep || view.sizes.find((s) => s.size === view.recommended) || view.sizes[0]);
@@ -155,8 +149,23 @@ async function submit(e) {
   if (e) e.preventDefault();
   $('go').disabled = true;
   try {
-    status('fitting the body…');
-    const body = await api('/v1/bodies', { height_cm: +$('height_cm').value, weight_kg: +$('weight_kg').value, gender: $('gender').value });
+    const photos = [...$('photos').files];
+    let body;
+    if (photos.length) {  // the body from the shopper's photos, with their height (and weight)
+      if (photos.length > 4) throw new Error('give at most 4 photos');
+      status(`reading ${photos.length} photo(s)…`);
+      const form = new FormData();
+      for (const f of photos) form.append('photos', f, f.name);
+      form.append('height_cm', $('height_cm').value);
+      form.append('gender', $('gender').value);
+      if ($('weight_kg').value) form.append('weight_kg', $('weight_kg').value);
+      const r = await fetch('/v1/bodies/photos', { method: 'POST', body: form });
+      body = await r.json().catch(() => ({}));
+      if (!r.ok) throw new Error(body.detail || `${r.status} ${r.statusText}`);
+    } else {
+      status('fitting the body…');
+      body = await api('/v1/bodies', { height_cm: +$('height_cm').value, weight_kg: +$('weight_kg').value, gender: $('gender').value });
+    }
     const m = body.measurements;
     $('body').textContent = `your body: chest ${m.chest_cm.toFixed(0)}, waist ${m.waist_cm.toFixed(0)}, hip ${m.hip_cm.toFixed(0)} cm`;
     status('draping every size…');

@@ -1,0 +1,149 @@
+"""The service's answer in two steps (`tryon serve`).
+
+1. `first_answer`: every size predicted by the learned model and judged on its prediction
+   (by ease: a prediction's strain is noise until refined). No simulator model is built,
+   so every size of a garment is predicted and judged in a fraction of a second on one
+   thread.
+2. `refine_decisive`: only the sizes that decide are refined by the simulator: the
+   predicted recommendation, then the next larger while the refined one does not fit.
+   A smaller size is tighter everywhere, so once a size fits none below it would fit
+   looser; the sizes not refined keep their prediction's numbers and are not candidates.
+
+`tryon size` refines more thoroughly (`tryon.sizing.recommend`); both judge and recommend
+with `tryon.sizing.judge`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from tryon.body.fit import BodyFit
+from tryon.body.measure import drafting_measurements
+from tryon.body.pose import BodyPose, posed_body
+from tryon.drape.pipeline import DrapeRequest, DrapeResult
+from tryon.garment.sizes import SIZES
+from tryon.sizing.judge import judge, judge_size, recommend
+
+
+@dataclass
+class PredictedSize:
+    """One size predicted on the person: the garment (rest shape, panels), its vertices,
+    strain per face, distance to the skin per vertex (m) and its judgement."""
+
+    size: str
+    garment: object
+    x: np.ndarray
+    strain: np.ndarray
+    skin_distance: np.ndarray
+    judged: dict
+
+
+@dataclass
+class FirstAnswer:
+    recommended: str
+    reasons: list[str]
+    sizes: list[PredictedSize]
+    body: BodyPose  # the A-posed body the sizes were predicted on
+    notes: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+@lru_cache(maxsize=8)
+def shipped_model(garment: str):
+    """The garment's shipped learned model, loaded once per process."""
+    from tryon.learn.model import load_shipped
+
+    return load_shipped(garment)
+
+
+def ordered_sizes(sizes) -> list[str]:
+    return sorted({s.upper() for s in sizes}, key=lambda s: SIZES.index(s) if s in SIZES else 99)
+
+
+def a_posed(person: BodyFit) -> BodyPose:
+    """The body the learned model and the refinement drape on."""
+    return posed_body(person.shape, "a", drafting_measurements(person.shape)["crotch_height"])
+
+
+def garment_strain(garment, x: np.ndarray) -> np.ndarray:
+    """The largest principal stretch - 1 of each face of `garment` at positions `x`."""
+    import torch
+
+    from tryon.sim.forces.geometry import rest_state
+    from tryon.sim.metrics import principal_stretch
+
+    faces = torch.from_numpy(garment.faces)
+    F = len(garment.faces)
+    dm_inv, _ = rest_state(torch.from_numpy(garment.corner_uv.reshape(-1, 2)), torch.arange(3 * F).reshape(F, 3))
+    return (principal_stretch(torch.from_numpy(np.ascontiguousarray(x)), faces, dm_inv) - 1.0).numpy()
+
+
+def predict_size(model, body: BodyPose, gender: str, size: str) -> PredictedSize:
+    from tryon.sim.collision import nearest_surface_points
+
+    garment = model.reference_garment(gender, size)
+    x = model.predict_vertices(body.vertices, gender, size)
+    strain = garment_strain(garment, x)
+    d, _, _ = nearest_surface_points(x, body.vertices, body.faces)
+    judged = dict(judge(size, garment, d, strain, None, strain_reliable=False), judged_on="prediction")
+    return PredictedSize(size, garment, x, strain, d, judged)
+
+
+def first_answer(person: BodyFit, gender: str, garment: str, sizes: list[str] | None = None,
+                 model=None) -> FirstAnswer:
+    """Every size (default: every size the model knows) predicted on `person` and judged;
+    the recommendation among them."""
+    t0 = time.perf_counter()
+    model = model or shipped_model(garment)
+    body = a_posed(person)
+    t1 = time.perf_counter()
+    predicted = [predict_size(model, body, gender, s) for s in ordered_sizes(sizes or model.sizes)]
+    best, reasons = recommend([p.judged for p in predicted])
+    notes = model.coverage_notes(gender, person.achieved["height_cm"], person.achieved["bmi"])
+    return FirstAnswer(best, reasons, predicted, body, notes,
+                       {"pose_s": t1 - t0, "predict_s": time.perf_counter() - t1})
+
+
+def refine_decisive(first: FirstAnswer, person: BodyFit, request: DrapeRequest, model=None,
+                    on_refined=None) -> tuple[str, list[str], list[dict], dict[str, DrapeResult]]:
+    """Refine the predicted recommendation, then each larger size while the refined one
+    does not fit. Returns (recommended, reasons, every size's judgement, the refined drapes
+    by size). `request`: the body, garment and fabric (its size is ignored).
+    `on_refined(size, result)` is called as each refined drape is judged."""
+    from dataclasses import replace
+
+    from tryon.learn.drape import learned_drape
+
+    model = model or shipped_model(request.garment)
+    judged = [dict(p.judged) for p in first.sizes]
+    names = [p.size for p in first.sizes]
+    refined: dict[str, DrapeResult] = {}
+    k = names.index(first.recommended)
+    while k < len(names):
+        req = replace(request, size=names[k], allow_tight=True)
+        result = learned_drape(req, refine=True, person=person, model=model)
+        judged[k] = dict(judge_size(names[k], result), judged_on="refined drape")
+        refined[names[k]] = result
+        if on_refined is not None:
+            on_refined(names[k], result)
+        if judged[k]["fits"]:
+            break
+        k += 1
+    lowest, highest = min(refined, key=names.index), max(refined, key=names.index)
+    for i, j in enumerate(judged):
+        if names[i] in refined:
+            continue
+        tight = [n for n in refined if names.index(n) > i and not judged[names.index(n)]["fits"]]
+        if tight:  # tighter than a size that does not fit
+            j["not_refined"] = f"smaller than {tight[0]}, which does not fit"
+            j.update(fits=False, why_not=j["why_not"] or [f"it is smaller than {tight[0]}, which does not fit"])
+        elif i < names.index(lowest):
+            j["not_refined"] = f"smaller than {lowest}, which the prediction chose and which fits"
+        else:
+            j["not_refined"] = f"larger than {highest}, which fits"
+    best, reasons = recommend(judged)
+    return best, reasons, judged, refined

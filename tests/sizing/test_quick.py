@@ -1,0 +1,54 @@
+"""The service's two-step answer: every size predicted and judged without a simulator,
+then only the sizes that decide refined."""
+
+import numpy as np
+import pytest
+
+from tryon.body.amortised import quick_fit
+from tryon.body.fit import Measurements
+from tryon.sizing.quick import first_answer, shipped_model
+
+pytestmark = pytest.mark.anny
+
+PERSON = Measurements(height_cm=180, weight_kg=80, gender="male")
+
+
+@pytest.fixture(scope="module")
+def answered():
+    person = quick_fit(PERSON)
+    return person, first_answer(person, "male", "tshirt")
+
+
+def test_every_size_is_predicted_and_judged_by_its_ease(answered):
+    _, first = answered
+    model = shipped_model("tshirt")
+    assert [p.size for p in first.sizes] == model.sizes
+    eases = [p.judged["torso_ease_cm"] for p in first.sizes]
+    assert np.all(np.diff(eases) > 0), eases  # a larger size stands further off the skin
+    assert all(p.judged["judged_on"] == "prediction" for p in first.sizes)
+    assert first.recommended in model.sizes and first.reasons[0].startswith(first.recommended)
+    for p in first.sizes:
+        assert p.x.shape == p.garment.vertices.shape and np.isfinite(p.strain).all()
+        assert p.skin_distance.shape == (len(p.x),) and np.median(p.skin_distance) > 0
+    # strain is not trusted on a prediction: a size fits or not by its ease alone
+    assert all(p.judged["fits"] == (min(r["ease_cm"] for r in p.judged["regions"].values()) >= 0.5)
+               for p in first.sizes)
+
+
+@pytest.mark.slow
+def test_refinement_settles_the_predicted_size_and_says_why_the_others_were_not(answered):
+    from tryon.drape.pipeline import DrapeRequest
+    from tryon.sizing.quick import refine_decisive
+
+    person, first = answered
+    seen = []
+    best, reasons, judged, refined = refine_decisive(first, person, DrapeRequest(PERSON, garment="tshirt"),
+                                                     on_refined=lambda size, result: seen.append(size))
+    assert first.recommended in refined and seen == list(refined)
+    assert best in refined and reasons[0].startswith(best)
+    for j in judged:
+        if j["size"] in refined:
+            assert j["judged_on"] == "refined drape" and "not_refined" not in j
+        else:
+            assert j["judged_on"] == "prediction" and j["not_refined"]
+    assert refined[best].metrics["penetration_pct"] == 0.0
