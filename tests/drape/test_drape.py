@@ -38,6 +38,9 @@ def test_drape_writes_a_believable_tshirt(drape_dir):
     assert rep["self_intersections"] == 0 and rep["body_intersections"] == 0
     assert rep["settled"]
     assert 0.0 < rep["max_strain"] < 0.35 and rep["mean_strain"] < 0.06
+    # judged as tryon size and the service judge a size
+    assert rep["fit"]["judged_on"] == "simulated drape" and rep["fit"]["fits"] == (not rep["fit"]["why_not"])
+    assert rep["fit"]["torso_ease_cm"] > 0
     assert abs(rep["body"]["achieved"]["height_cm"] - 165) < 1.0
     # it rests on the shoulders, not floating: most of it within 3 cm of the skin
     assert rep["mean_skin_distance_mm"] < 30.0

@@ -62,6 +62,7 @@ def test_drape_learned_uses_the_shipped_model(tmp_path):
                  "learned", "--out", str(out), "--quiet"]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["method"] == "learned" and rep["penetration_pct"] < 2.0 and rep["max_strain"] < 1.0
+    assert rep["fit"]["judged_on"] == "prediction" and rep["fit"]["fits"]  # M on a 180 cm, 80 kg man
     assert rep["mesh"]["garment_vertices"] == load_shipped("tshirt").hierarchy.n
 
 

@@ -138,15 +138,35 @@ def _cmd_drape(args: argparse.Namespace) -> int:
         raise TryonError("--model and --refine belong to --method learned")
     else:
         result = drape(req, progress=not args.quiet, person=person)
+    verdict = _fit_verdict(result, predicted=args.method == "learned" and not args.refine)
+    if verdict:
+        result.metrics["fit"] = verdict
     rep = write_outputs(result, out, force=args.force)
     a, b = rep["body"]["achieved"], rep["body"]["asked"]
     print(f"body: asked {b.get('height_cm'):.0f} cm / BMI {b.get('bmi', float('nan')):.1f}, achieved {a['height_cm']:.1f} cm / "
           f"{a['weight_kg']:.1f} kg / BMI {a['bmi']:.1f} (chest {a['chest_cm']:.0f}, waist {a['waist_cm']:.0f}, hip {a['hip_cm']:.0f} cm)")
     print(f"{req.garment} {rep['size'] or ''} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
           f"penetration {rep['penetration_pct']:.2f} % of vertices, " + _how(rep) + f"; {rep['wall_s']:.1f} s -> {out}")
+    if verdict:
+        ease = f"torso ease {verdict['torso_ease_cm']:.1f} cm"
+        print(f"fit: {'fits' if verdict['fits'] else 'does not fit'} ({'; '.join([ease, *verdict['why_not']])}; judged on "
+              f"the {verdict['judged_on']}, as tryon size judges every size)")
     for note in rep.get("notes", []):
         print(f"note: {note}")
     return 0
+
+
+def _fit_verdict(result, predicted: bool) -> dict | None:
+    """Whether the draped size fits, judged as `tryon size` and the service judge it (a
+    garment without pattern panels, from an OBJ, is not judged)."""
+    from tryon.sizing.judge import judge_size
+
+    if result.garment.pattern is None:
+        return None
+    j = judge_size(result.request.size or "made to measure", result, strain_reliable=not predicted)
+    return {"fits": j["fits"], "why_not": j["why_not"], "torso_ease_cm": j["torso_ease_cm"],
+            "judged_on": "prediction" if predicted else "refined drape" if result.metrics.get("method", "").startswith(
+                "learned") else "simulated drape"}
 
 
 def _how(rep: dict) -> str:
