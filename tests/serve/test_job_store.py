@@ -57,3 +57,24 @@ def test_pruning_forgets_old_finished_fits_and_unused_bodies(tmp_path):
     store.update(fit_id, "failed", 1.0, reason="x")
     fits, bodies = store.prune(-1.0)
     assert fits == [fit_id] and len(bodies) == 1 and store.fit(fit_id) is None
+
+
+def test_a_phase_that_moved_on_is_never_released_by_a_late_requeue(tmp_path):
+    store, fit_id = _fit(tmp_path)
+    store.claim_next(("answer",))
+    store.update(fit_id, "predicted", 0.3, result={"recommended": "M"})
+    store.next_phase(fit_id, "refine")  # the answer worker finished, then its process died
+    assert store.claim_next(("refine",)) == (fit_id, "refine")
+    assert store.requeue_or_fail(fit_id, "a worker process died", "answer") == "predicted"
+    row = store.fit(fit_id)
+    assert row.claimed and row.phase == "refine"  # still the refining worker's
+    assert store.claim_next(("refine",)) is None  # never claimed twice
+
+
+def test_a_phase_cut_off_for_another_jobs_trouble_keeps_its_tries(tmp_path):
+    store, fit_id = _fit(tmp_path)
+    for _ in range(MAX_ATTEMPTS + 2):
+        assert store.claim_next(("answer",)) == (fit_id, "answer")
+        assert store.requeue_or_fail(fit_id, "its worker pool was replaced", "answer", charge=False) == "queued"
+    assert store.fit(fit_id).attempts == 0
+    assert store.claimed() == []

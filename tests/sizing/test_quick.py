@@ -52,3 +52,21 @@ def test_refinement_settles_the_predicted_size_and_says_why_the_others_were_not(
         else:
             assert j["judged_on"] == "prediction" and j["not_refined"]
     assert refined[best].metrics["penetration_pct"] == 0.0
+
+
+def _j(size, fits, ease, on="refined drape"):
+    return {"size": size, "fits": fits, "torso_ease_cm": ease, "judged_on": on}
+
+
+def test_refinement_goes_one_size_up_only_where_the_larger_would_be_the_better_fit():
+    from tryon.sizing.judge import TARGET_EASE_CM as T
+    from tryon.sizing.quick import _refine_next
+
+    tight_fit = [_j("S", True, 0.6), _j("M", True, T + 0.2, "prediction")]
+    assert _refine_next(tight_fit, 0)  # fits, but M is predicted nearer a regular fit
+    assert not _refine_next([_j("S", True, 0.6), _j("M", True, T + 3.0, "prediction")], 0)  # M too loose
+    assert not _refine_next([_j("S", True, T + 0.1), _j("M", True, T + 1.5, "prediction")], 0)  # S is regular
+    assert _refine_next([_j("S", False, -0.5), _j("M", True, 1.0, "prediction")], 0)  # S does not fit
+    assert not _refine_next([_j("S", False, -0.5)], 0)  # nothing larger
+    # a larger size refined that does not fit where a smaller refined one did: stop there
+    assert not _refine_next([_j("S", True, 0.6), _j("M", False, 1.0), _j("L", True, 2.0, "prediction")], 1)

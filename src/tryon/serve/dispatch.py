@@ -3,15 +3,19 @@ keeps every job accounted for when a worker dies or a job runs too long.
 
 Two lanes, so a first answer never waits behind a refinement:
 - the answer lane (`answer` phases: a fraction of a second each) at normal priority;
-- the work lane (`refine` and `simulate`: seconds to minutes) at a lower priority
-  (`jobs.REFINE_NICENESS`), so it takes only the processor time the answers leave.
+- the work lane (`refine` and `simulate`: seconds to minutes), whose local workers run at
+  a lower priority (`jobs.REFINE_NICENESS`), so they take only the processor time the
+  answers leave. Ray tasks are not niced: a Ray worker process is reused by any task.
 
 Each lane's workers are local processes (spawned), or Ray tasks on an existing cluster
 (`--ray-address`; the cluster's nodes must see `--data`, e.g. the same machine or a
 shared disk). A local worker that dies (killed, out of memory) breaks its pool: every job
-the pool held goes back to its queue (`Store.requeue_or_fail`) and a fresh pool starts; a
-Ray task whose worker dies is queued again the same way. A job past the time limit fails
-with that reason and is stopped (its local pool replaced, or its Ray task cancelled).
+the pool held and did not finish goes back to its queue (`Store.requeue_or_fail`, a try
+spent) and a fresh pool starts; a Ray task whose worker dies is queued again the same way.
+A job past the time limit fails with that reason and is stopped (its local pool replaced,
+the others of that pool queued again with their tries given back, or its Ray task
+cancelled; on Ray the limit counts from the hand-over, queueing on the cluster included).
+Every few seconds each lane sweeps back any claim no worker holds.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from tryon.serve.store import Store
 
 POLL_S = 0.02
 PRUNE_EVERY_S = 60.0
+SWEEP_EVERY_S = 5.0
 ANSWER_TIME_LIMIT_S = 120.0
 
 
@@ -93,7 +98,14 @@ class LocalWorkers:
         self.pool.shutdown(wait=False, cancel_futures=True)
 
     def pids(self) -> list[int]:
-        return [p.pid for p in (getattr(self.pool, "_processes", None) or {}).values()]
+        """The workers' process ids (asked from another thread: the pool may be replaced
+        meanwhile, so a copy of its table is read, once more if it changed under us)."""
+        for _ in range(3):
+            try:
+                return [p.pid for p in list((getattr(self.pool, "_processes", None) or {}).values())]
+            except RuntimeError:  # the table changed while it was copied
+                continue
+        return []
 
 
 class RayWorkers:
@@ -133,6 +145,18 @@ class RayWorkers:
         return []
 
 
+class Job:
+    """A phase of a fit in a worker's hands."""
+
+    def __init__(self, phase: str, future: Future):
+        self.phase, self.future, self.started = phase, future, time.time()
+
+    def finished_itself(self) -> bool:
+        """The worker returned (run_phase wrote the outcome; a job's own error fails the
+        fit there): nothing for the dispatcher to do."""
+        return self.future.done() and not self.future.cancelled() and self.future.exception() is None
+
+
 class Lane:
     """Workers that run some phases, and the jobs they hold."""
 
@@ -140,7 +164,7 @@ class Lane:
                  events: dict):
         self.name, self.phases, self.workers = name, phases, workers
         self.store, self.data, self.time_limit_s, self.events = store, data, time_limit_s, events
-        self.running: dict[str, tuple[Future, float]] = {}
+        self.running: dict[str, Job] = {}
 
     def fill(self) -> None:
         while len(self.running) < self.workers.workers:
@@ -150,56 +174,68 @@ class Lane:
             fit_id, phase = claimed
             try:
                 fut = self.workers.submit(str(self.store.path), str(self.data), fit_id, phase)
-            except (BrokenProcessPool, RuntimeError):
-                self.store.requeue_or_fail(fit_id, "a worker process died")
+            except Exception:  # noqa: BLE001 - a broken pool, a lost cluster: not this job's fault
+                self.store.requeue_or_fail(fit_id, "its workers could not take it", phase, charge=False)
                 self.restart()
                 return
-            self.running[fit_id] = (fut, time.time())
+            self.running[fit_id] = Job(phase, fut)
 
     def collect(self) -> None:
         broken = False
-        for fit_id, (fut, _) in list(self.running.items()):
-            if not fut.done():
+        for fit_id, job in list(self.running.items()):
+            if not job.future.done():
                 continue
+            if not job.finished_itself():
+                # run_phase catches the job's own errors: anything raised here is the worker's end
+                exc = None if job.future.cancelled() else job.future.exception()
+                broken = broken or isinstance(exc, BrokenProcessPool)
+                self.events["requeued"] += 1
+                self.store.requeue_or_fail(fit_id, f"a worker process died while it ran ({type(exc).__name__})",
+                                           job.phase)
             del self.running[fit_id]
-            self.workers.forget(fut)
-            exc = fut.exception()
-            if exc is None:
-                continue
-            # run_phase catches the job's own errors: anything raised here is the worker's end
-            self.events["requeued"] += 1
-            broken = broken or isinstance(exc, BrokenProcessPool)
-            self.store.requeue_or_fail(fit_id, f"a worker process died while it ran ({type(exc).__name__})")
+            self.workers.forget(job.future)
         if broken:
             self.restart()
 
     def enforce_time_limit(self) -> None:
-        late = [f for f, (_, t0) in self.running.items() if time.time() - t0 > self.time_limit_s]
+        late = [f for f, job in self.running.items() if time.time() - job.started > self.time_limit_s]
         if not late:
             return
         for fit_id in late:
             self.events["timeouts"] += 1
             self.store.update(fit_id, "failed", 1.0, reason=f"took longer than the {self.time_limit_s:.0f} s limit")
-        if self.workers.stop([self.running[f][0] for f in late]):  # the others stopped with them start again
-            for fit_id in list(self.running):
-                if fit_id not in late:
-                    self.store.requeue_or_fail(fit_id, "its worker pool was replaced")
+        if self.workers.stop([self.running[f].future for f in late]):  # the others stopped with them start again
+            for fit_id, job in self.running.items():
+                if fit_id not in late and not job.finished_itself():
+                    self.store.requeue_or_fail(fit_id, "its worker pool was replaced", job.phase, charge=False)
             self.running.clear()
         for fit_id in late:
             self.running.pop(fit_id, None)
 
     def restart(self) -> None:
+        """A fresh set of workers; every job the old ones held and did not finish is
+        claimable again (a broken pool fails them all, so each is charged a try)."""
         self.events["worker_restarts"] += 1
-        for fit_id, (fut, _) in list(self.running.items()):
-            if not fut.done():
-                self.store.requeue_or_fail(fit_id, "a worker process died while it ran")
+        for fit_id, job in self.running.items():
+            if not job.finished_itself():
+                self.store.requeue_or_fail(fit_id, "a worker process died while it ran", job.phase)
         self.running.clear()
         self.workers.restart()
 
+    def sweep(self) -> int:
+        """Claimed fits of this lane's phases that no worker holds (a claim whose
+        hand-over failed half-way): claimable again. The dispatcher is the only claimer,
+        so such a claim is an orphan. Returns how many."""
+        orphans = [(f, p) for f, p in self.store.claimed() if p in self.phases and f not in self.running]
+        for fit_id, phase in orphans:
+            self.store.requeue_or_fail(fit_id, "its hand-over to a worker failed", phase, charge=False)
+        return len(orphans)
+
     def close(self) -> None:
         self.workers.close()
-        for fit_id in list(self.running):  # cut off here: claimable again at the next start
-            self.store.requeue_or_fail(fit_id, "the server stopped while it ran")
+        for fit_id, job in self.running.items():  # cut off here: claimable again at the next start
+            if not job.finished_itself():
+                self.store.requeue_or_fail(fit_id, "the server stopped while it ran", job.phase, charge=False)
         self.running.clear()
 
 
@@ -212,7 +248,7 @@ class Dispatcher:
         self.lanes: list[Lane] = []
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._loop, name="tryon-dispatch", daemon=True)
-        self.events = {"worker_restarts": 0, "timeouts": 0, "requeued": 0}
+        self.events = {"worker_restarts": 0, "timeouts": 0, "requeued": 0, "orphans": 0, "dispatch_errors": 0}
         self._ray_started = False
 
     def start(self) -> None:
@@ -249,15 +285,20 @@ class Dispatcher:
         return {lane.name: lane.workers.pids() for lane in self.lanes}
 
     def _loop(self) -> None:
-        last_prune = 0.0
+        last_prune = last_sweep = 0.0
         while not self.stop.is_set():
             for lane in self.lanes:
                 try:
                     lane.collect()
                     lane.enforce_time_limit()
                     lane.fill()
+                    if time.time() - last_sweep > SWEEP_EVERY_S:
+                        self.events["orphans"] += lane.sweep()
                 except Exception:  # noqa: BLE001 - the loop must outlive any one job's trouble
+                    self.events["dispatch_errors"] += 1
                     time.sleep(0.5)
+            if time.time() - last_sweep > SWEEP_EVERY_S:
+                last_sweep = time.time()
             if time.time() - last_prune > PRUNE_EVERY_S:
                 self._prune()
                 last_prune = time.time()
@@ -266,9 +307,9 @@ class Dispatcher:
     def _prune(self) -> None:
         try:
             fits, bodies = self.store.prune(self.retention_s)
-        except Exception:  # noqa: BLE001 - a busy database: next time
-            return
-        for fit_id in fits:
-            shutil.rmtree(fit_folder(self.data, fit_id), ignore_errors=True)
-        for body_id in bodies:
-            body_path(self.data, body_id).unlink(missing_ok=True)
+            for fit_id in fits:
+                shutil.rmtree(fit_folder(self.data, fit_id), ignore_errors=True)
+            for body_id in bodies:
+                body_path(self.data, body_id).unlink(missing_ok=True)
+        except Exception:  # noqa: BLE001 - a busy database, a file in use: next time
+            self.events["dispatch_errors"] += 1

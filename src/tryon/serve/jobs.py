@@ -62,9 +62,14 @@ def run_phase(db: str, data: str, fit_id: str, phase: str) -> str:
 
     one_thread_per_worker()  # a Ray worker's too
     store = Store(db)
-    row = store.fit(fit_id)
-    body_request, _ = store.body(row.body_id)
     try:
+        row = store.fit(fit_id)
+        if row is None:  # forgotten meanwhile (retention): nothing to do
+            return "missing"
+        body = store.body(row.body_id)
+        if body is None:
+            raise TryonError(f"the body {row.body_id} is no longer kept; post it again")
+        body_request = body[0]
         with one_torch_thread():
             person = _person(str(body_path(Path(data), row.body_id)))
             run = {"answer": _answer, "refine": _refine, "simulate": _simulate}[phase]
@@ -105,7 +110,6 @@ def _refine(store: Store, data: Path, fit_id: str, body_request: dict, req: dict
     from tryon.drape.pipeline import DrapeRequest
     from tryon.sizing.quick import refine_decisive
 
-    _lower_priority()
     t0 = time.perf_counter()
     first = _first(body_request, req, person)
     folder = fit_folder(data, fit_id)
@@ -134,7 +138,6 @@ def _simulate(store: Store, data: Path, fit_id: str, body_request: dict, req: di
     from tryon.body.fit import Measurements
     from tryon.sizing.recommend import size_recommendation
 
-    _lower_priority()
     t0 = time.perf_counter()
     rec, results = size_recommendation(Measurements(**body_request), garment=req["garment"], fabric=req["fabric"],
                                        method="simulate", sizes=req.get("sizes") or list(SIMULATED_SIZES),
@@ -150,15 +153,6 @@ def _simulate(store: Store, data: Path, fit_id: str, body_request: dict, req: di
                                                    "method": rec["method"], "sizes": sizes, "notes": rec["notes"],
                                                    "timings": {"simulate_s": round(time.perf_counter() - t0, 3)}})
     return "simulated"
-
-
-def _lower_priority() -> None:
-    import os
-
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, max(os.getpriority(os.PRIO_PROCESS, 0), REFINE_NICENESS))
-    except (AttributeError, OSError):  # not on this platform: the work runs at normal priority
-        pass
 
 
 def _number(x) -> float | None:

@@ -144,26 +144,49 @@ class Store:
         self._run(f"UPDATE fits SET phase = ?, claimed = 0, attempts = 0, updated = ? WHERE id = ? AND status NOT IN "
                   f"{DONE}", (phase, time.time(), fit_id))
 
-    def requeue_or_fail(self, fit_id: str, reason: str) -> str:
+    def requeue_or_fail(self, fit_id: str, reason: str, phase: str | None = None, charge: bool = True) -> str:
         """A phase cut off (its worker died, the server stopped): claimable again, or the
         fit failed with `reason` once the phase has been tried `MAX_ATTEMPTS` times (what
-        an earlier phase answered is kept). Returns the fit's status."""
-        row = self.fit(fit_id)
-        if row is None or row.status in DONE:
-            return row.status if row else "missing"
-        if row.attempts >= MAX_ATTEMPTS:
-            self.update(fit_id, "failed", row.progress, reason=f"{reason} (tried {row.attempts} times)")
-            return "failed"
-        status = "queued" if row.status == "running" else row.status
-        self._run("UPDATE fits SET status = ?, claimed = 0, updated = ? WHERE id = ?", (status, time.time(), fit_id))
-        return status
+        an earlier phase answered is kept). Only a fit still claimed in `phase` (any phase
+        when None) is touched: a phase that finished, or was claimed again since, is left
+        alone. `charge=False` when the phase was cut off for another job's trouble (a pool
+        replaced for a neighbour, the server stopping): the try is given back. Returns the
+        fit's status."""
+        db = self._db()
+        try:
+            db.execute("BEGIN IMMEDIATE")
+            row = db.execute("SELECT status, progress, attempts, phase, claimed FROM fits WHERE id = ?", (fit_id,)).fetchone()
+            if row is None:
+                db.execute("COMMIT")
+                return "missing"
+            if row["status"] in DONE or not row["claimed"] or (phase is not None and row["phase"] != phase):
+                db.execute("COMMIT")
+                return row["status"]
+            attempts = row["attempts"] if charge else max(0, row["attempts"] - 1)
+            now = time.time()
+            if attempts >= MAX_ATTEMPTS:
+                db.execute("UPDATE fits SET status = 'failed', reason = ?, claimed = 0, updated = ? WHERE id = ?",
+                           (f"{reason} (tried {attempts} times)", now, fit_id))
+                status = "failed"
+            else:
+                status = "queued" if row["status"] == "running" else row["status"]
+                db.execute("UPDATE fits SET status = ?, claimed = 0, attempts = ?, updated = ? WHERE id = ?",
+                           (status, attempts, now, fit_id))
+            db.execute("COMMIT")
+            return status
+        finally:
+            db.close()
+
+    def claimed(self) -> list[tuple[str, str]]:
+        """(fit id, phase) of every fit claimed by a worker and not done."""
+        return [(r["id"], r["phase"]) for r in self._run(f"SELECT id, phase FROM fits WHERE claimed = 1 AND status NOT IN {DONE}")]
 
     def recover(self) -> dict[str, int]:
         """At start: every phase left claimed (cut off) is claimable again, or its fit
         fails after `MAX_ATTEMPTS`."""
         counts: dict[str, int] = {}
-        for r in self._run(f"SELECT id FROM fits WHERE claimed = 1 AND status NOT IN {DONE}"):
-            status = self.requeue_or_fail(r["id"], "the server stopped while it ran")
+        for fit_id, phase in self.claimed():
+            status = self.requeue_or_fail(fit_id, "the server stopped while it ran", phase)
             counts[status] = counts.get(status, 0) + 1
         return counts
 

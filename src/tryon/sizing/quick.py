@@ -26,7 +26,7 @@ from tryon.body.measure import drafting_measurements
 from tryon.body.pose import BodyPose, posed_body
 from tryon.drape.pipeline import DrapeRequest, DrapeResult
 from tryon.garment.sizes import SIZES
-from tryon.sizing.judge import judge, judge_size, recommend
+from tryon.sizing.judge import TARGET_EASE_CM, judge, judge_size, recommend
 
 
 @dataclass
@@ -108,10 +108,21 @@ def first_answer(person: BodyFit, gender: str, garment: str, sizes: list[str] | 
                        {"pose_s": t1 - t0, "predict_s": time.perf_counter() - t1})
 
 
+def _refine_next(judged: list[dict], k: int) -> bool:
+    """Whether the size after `k` (just refined) must be refined too."""
+    if k + 1 >= len(judged):
+        return False
+    if not judged[k]["fits"]:
+        return not any(j["fits"] for j in judged[:k] if j.get("judged_on") == "refined drape")
+    ease, larger = judged[k]["torso_ease_cm"], judged[k + 1]["torso_ease_cm"]
+    return ease < TARGET_EASE_CM and abs(larger - TARGET_EASE_CM) < abs(ease - TARGET_EASE_CM)
+
+
 def refine_decisive(first: FirstAnswer, person: BodyFit, request: DrapeRequest, model=None,
                     on_refined=None) -> tuple[str, list[str], list[dict], dict[str, DrapeResult]]:
     """Refine the predicted recommendation, then each larger size while the refined one
-    does not fit. Returns (recommended, reasons, every size's judgement, the refined drapes
+    does not fit, or fits with less ease than a regular fit and the larger size's
+    prediction comes closer to it (what `recommend` would choose among them). Returns (recommended, reasons, every size's judgement, the refined drapes
     by size). `request`: the body, garment and fabric (its size is ignored).
     `on_refined(size, result)` is called as each refined drape is judged."""
     from dataclasses import replace
@@ -130,17 +141,18 @@ def refine_decisive(first: FirstAnswer, person: BodyFit, request: DrapeRequest, 
         refined[names[k]] = result
         if on_refined is not None:
             on_refined(names[k], result)
-        if judged[k]["fits"]:
+        if not _refine_next(judged, k):
             break
         k += 1
     lowest, highest = min(refined, key=names.index), max(refined, key=names.index)
     for i, j in enumerate(judged):
         if names[i] in refined:
             continue
-        tight = [n for n in refined if names.index(n) > i and not judged[names.index(n)]["fits"]]
-        if tight:  # tighter than a size that does not fit
-            j["not_refined"] = f"smaller than {tight[0]}, which does not fit"
-            j.update(fits=False, why_not=j["why_not"] or [f"it is smaller than {tight[0]}, which does not fit"])
+        above = [n for n in refined if names.index(n) > i]
+        nearest = min(above, key=names.index) if above else None
+        if nearest is not None and not judged[names.index(nearest)]["fits"]:  # tighter than a size that does not fit
+            j["not_refined"] = f"smaller than {nearest}, which does not fit"
+            j.update(fits=False, why_not=j["why_not"] or [f"it is smaller than {nearest}, which does not fit"])
         elif i < names.index(lowest):
             j["not_refined"] = f"smaller than {lowest}, which the prediction chose and which fits"
         else:
