@@ -70,3 +70,22 @@ def test_refinement_goes_one_size_up_only_where_the_larger_would_be_the_better_f
     assert not _refine_next([_j("S", False, -0.5)], 0)  # nothing larger
     # a larger size refined that does not fit where a smaller refined one did: stop there
     assert not _refine_next([_j("S", True, 0.6), _j("M", False, 1.0), _j("L", True, 2.0, "prediction")], 1)
+
+
+@pytest.mark.slow
+def test_a_refinement_for_judging_stops_once_the_verdict_settles_and_agrees_with_one_run_to_rest(answered):
+    from tryon.drape.pipeline import DrapeRequest
+    from tryon.learn.drape import learned_drape
+    from tryon.sizing.judge import judge_size
+    from tryon.sizing.quick import refined_for_judging
+
+    person, _ = answered
+    request = DrapeRequest(PERSON, garment="tshirt", size="XL", allow_tight=True)  # loose: far from every threshold
+    quick = refined_for_judging(request, person, shipped_model("tshirt"))
+    rest = learned_drape(request, refine=True, person=person, model=shipped_model("tshirt"))
+    assert quick.metrics["refine_steps"] < rest.metrics["refine_steps"]
+    a, b = judge_size(request.size, quick), judge_size(request.size, rest)
+    assert a["fits"] == b["fits"]
+    assert abs(a["torso_ease_cm"] - b["torso_ease_cm"]) < 0.4
+    assert abs(a["overstrained_area_pct"] - b["overstrained_area_pct"]) < 1.0
+    assert quick.metrics["penetration_pct"] == 0.0

@@ -420,7 +420,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise TryonError("give at least 1 --shoppers and positive --duration and --fault-duration (seconds)")
         quick = args.quick
         run_serve_bench(args.json, shoppers=2 if quick else args.shoppers, duration_s=30 if quick else args.duration,
-                        fault_duration_s=30 if quick else args.fault_duration, workers=max(args.workers))
+                        fault_duration_s=30 if quick else args.fault_duration, workers=max(args.workers),
+                        faults=tuple(args.faults))
         return 0
     if args.what == "body":
         from tryon.bench.body import run_body_bench
@@ -713,6 +714,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="worker counts (parallel); serve: refinement workers (the largest given)")
     b.add_argument("--shoppers", type=int, default=8, help="serve: concurrent shoppers")
     b.add_argument("--duration", type=float, default=300.0, help="serve: seconds of load without a fault")
+    b.add_argument("--faults", nargs="*", default=["worker_killed", "server_restarted"],
+                   choices=["worker_killed", "server_restarted"], help="serve: the faults run after the plain load (none: give none)")
     b.add_argument("--fault-duration", type=float, default=90.0,
                    help="serve: seconds of load with a worker killed, then with the server restarted, halfway")
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged (learned: default "

@@ -18,10 +18,11 @@ from tryon.errors import TryonError
 
 
 def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: bool = False, person=None,
-                  model=None) -> DrapeResult:
+                  model=None, refine_until=None) -> DrapeResult:
     """The drape of `request` predicted by the learned model (the shipped one of the garment,
-    or `model_path`); with `refine`, relaxed by the simulator (tryon.learn.refine). A caller
-    draping several sizes passes the fitted `person` and the loaded `model` once."""
+    or `model_path`); with `refine`, relaxed by the simulator (tryon.learn.refine) until at
+    rest, or until the observer `refine_until(garment, posed body)` makes ends the run. A
+    caller draping several sizes passes the fitted `person` and the loaded `model` once."""
     from tryon.drape.dress import cloth_on_body
     from tryon.drape.fit_metrics import drape_metrics
     from tryon.fabric import load_fabric
@@ -54,7 +55,8 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
         from tryon.learn.refine import refine_drape
 
         x, refined = refine_drape(x, garment, target, load_fabric(request.fabric), request.thickness, request.friction,
-                                  request.dt, rest_speed=request.rest_speed, regions=request.material_regions(garment))
+                                  request.dt, rest_speed=request.rest_speed, regions=request.material_regions(garment),
+                                  until=refine_until(garment, target) if refine_until else None)
         timings["refine_s"] = refined["refine_s"]
     result = DrapeResult(request, person, None, garment, target.vertices, target.faces, x, [x], [0.0], timings=timings)
     t3 = time.perf_counter()

@@ -26,9 +26,11 @@ SETTLE_AIR_DAMPING = 4.0  # 1/s, as the simulated drape's settling
 
 def refine_drape(x: np.ndarray, garment: DressedGarment, body: BodyPose, fabric: Fabric, thickness: float = 0.004,
                  friction: float = 0.4, dt: float = 0.01, max_steps: int = 60, rest_speed: float = 0.02,
-                 regions: list | None = None) -> tuple[np.ndarray, dict]:
+                 regions: list | None = None, until=None) -> tuple[np.ndarray, dict]:
     """(refined vertices, stats) of a predicted garment `x` on `body`; `regions`: material
-    regions beyond the fabric (a print), which the prediction knows nothing of."""
+    regions beyond the fabric (a print), which the prediction knows nothing of. `until`:
+    an observer of the run (`tryon.sim.loop.Observer`) that may end it before the garment
+    is at rest, e.g. once what a caller measures of it has settled."""
     from tryon.sim.collision import count_intersections, push_outside
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import SettleTest, run
@@ -46,7 +48,7 @@ def refine_drape(x: np.ndarray, garment: DressedGarment, body: BodyPose, fabric:
     crossings, _ = count_intersections(x0, model.faces.numpy(), model.edges.numpy(), body.vertices, body.faces,
                                        model.obstacles.edges)
     at_rest = SettleTest(rest_speed, after=3)
-    outcome = run(ImplicitEulerSolver(model), start, dt, until=max_steps, observers=[at_rest],
+    outcome = run(ImplicitEulerSolver(model), start, dt, until=max_steps, observers=[at_rest, *([until] if until else [])],
                   control=Control(air_damping=SETTLE_AIR_DAMPING))
     return outcome.state.x.numpy(), {"refine_steps": outcome.step, "refine_final_speed": at_rest.speed,
                                      "pushed_out_vertices": int(moved.sum()), "start_self_crossings": int(crossings),

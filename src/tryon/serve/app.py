@@ -222,6 +222,7 @@ def create_app(settings: Settings) -> FastAPI:
                 raise HTTPException(429, f"the queue is full ({settings.max_queue} fits waiting); try again shortly",
                                     headers={"Retry-After": "5"})
             fit_id = store.add_fit(fit.body_id, fit.model_dump(), first_phase(fit.garment))
+            dispatcher.notify()
             return {"fit_id": fit_id, "body_id": fit.body_id, "status": "queued", "progress": 0.0, "recommended": None,
                     "sizes": []}
 
@@ -236,9 +237,13 @@ def create_app(settings: Settings) -> FastAPI:
             raise HTTPException(404, f"no fit {fit_id[:40]!r}: fit ids look like fit_0123456789abcdef")
         view = _fit_view(store, fit_id)
         deadline = time.monotonic() + wait
+        seen, read_at = dispatcher.generation, time.monotonic()
         while after is not None and view["status"] == after and time.monotonic() < deadline:
-            await asyncio.sleep(0.1)
-            view = _fit_view(store, fit_id)
+            await asyncio.sleep(0.02)
+            # read the fit again when the dispatcher saw a job move (or once a second in any case)
+            if dispatcher.generation != seen or time.monotonic() - read_at > 1.0:
+                seen, read_at = dispatcher.generation, time.monotonic()
+                view = _fit_view(store, fit_id)
         return view
 
     @app.get(f"/{API_VERSION}/catalog")

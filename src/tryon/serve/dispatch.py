@@ -31,7 +31,8 @@ from pathlib import Path
 from tryon.serve.jobs import REFINE_NICENESS, body_path, fit_folder, run_phase
 from tryon.serve.store import Store
 
-POLL_S = 0.02
+# the dispatcher wakes when a fit is posted or a job ends; else it looks at the queue this often
+IDLE_POLL_S = 0.5
 PRUNE_EVERY_S = 60.0
 SWEEP_EVERY_S = 5.0
 ANSWER_TIME_LIMIT_S = 120.0
@@ -161,30 +162,38 @@ class Lane:
     """Workers that run some phases, and the jobs they hold."""
 
     def __init__(self, name: str, phases: tuple[str, ...], workers, store: Store, data: Path, time_limit_s: float,
-                 events: dict):
+                 events: dict, wake: threading.Event | None = None):
         self.name, self.phases, self.workers = name, phases, workers
         self.store, self.data, self.time_limit_s, self.events = store, data, time_limit_s, events
+        self.wake = wake or threading.Event()  # set when a job of this lane ends
         self.running: dict[str, Job] = {}
 
-    def fill(self) -> None:
+    def fill(self) -> int:
+        """Claim and hand over waiting phases while a worker is free; how many."""
+        handed = 0
         while len(self.running) < self.workers.workers:
             claimed = self.store.claim_next(self.phases)
             if claimed is None:
-                return
+                return handed
+            handed += 1
             fit_id, phase = claimed
             try:
                 fut = self.workers.submit(str(self.store.path), str(self.data), fit_id, phase)
             except Exception:  # noqa: BLE001 - a broken pool, a lost cluster: not this job's fault
                 self.store.requeue_or_fail(fit_id, "its workers could not take it", phase, charge=False)
                 self.restart()
-                return
+                return handed
+            fut.add_done_callback(lambda _: self.wake.set())
             self.running[fit_id] = Job(phase, fut)
+        return handed
 
-    def collect(self) -> None:
-        broken = False
+    def collect(self) -> int:
+        """Take in the jobs that ended; how many."""
+        broken, ended = False, 0
         for fit_id, job in list(self.running.items()):
             if not job.future.done():
                 continue
+            ended += 1
             if not job.finished_itself():
                 # run_phase catches the job's own errors: anything raised here is the worker's end
                 exc = None if job.future.cancelled() else job.future.exception()
@@ -196,11 +205,13 @@ class Lane:
             self.workers.forget(job.future)
         if broken:
             self.restart()
+        return ended
 
-    def enforce_time_limit(self) -> None:
+    def enforce_time_limit(self) -> int:
+        """Fail and stop the jobs past the time limit; how many."""
         late = [f for f, job in self.running.items() if time.time() - job.started > self.time_limit_s]
         if not late:
-            return
+            return 0
         for fit_id in late:
             self.events["timeouts"] += 1
             self.store.update(fit_id, "failed", 1.0, reason=f"took longer than the {self.time_limit_s:.0f} s limit")
@@ -211,6 +222,7 @@ class Lane:
             self.running.clear()
         for fit_id in late:
             self.running.pop(fit_id, None)
+        return len(late)
 
     def restart(self) -> None:
         """A fresh set of workers; every job the old ones held and did not finish is
@@ -240,6 +252,10 @@ class Lane:
 
 
 class Dispatcher:
+    """Hands waiting phases to the lanes' workers from a thread of its own. `generation`
+    counts the changes it made or saw (a job claimed, ended, timed out): a long poll reads
+    a fit again only when it moved. `notify()` wakes it at once (a fit was posted)."""
+
     def __init__(self, store: Store, data: Path, workers: int, time_limit_s: float, retention_s: float,
                  answer_workers: int = 1, ray_address: str | None = None):
         self.store, self.data, self.workers = store, data, workers
@@ -249,7 +265,12 @@ class Dispatcher:
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._loop, name="tryon-dispatch", daemon=True)
         self.events = {"worker_restarts": 0, "timeouts": 0, "requeued": 0, "orphans": 0, "dispatch_errors": 0}
+        self.wake = threading.Event()
+        self.generation = 0
         self._ray_started = False
+
+    def notify(self) -> None:
+        self.wake.set()
 
     def start(self) -> None:
         if self.workers <= 0:
@@ -264,14 +285,15 @@ class Dispatcher:
             kind = RayWorkers
         self.lanes = [
             Lane("answer", ("answer",), kind(self.answer_workers, 0), self.store, self.data,
-                 min(self.time_limit_s, ANSWER_TIME_LIMIT_S), self.events),
+                 min(self.time_limit_s, ANSWER_TIME_LIMIT_S), self.events, self.wake),
             Lane("work", ("refine", "simulate"), kind(self.workers, REFINE_NICENESS), self.store, self.data,
-                 self.time_limit_s, self.events),
+                 self.time_limit_s, self.events, self.wake),
         ]
         self.thread.start()
 
     def close(self) -> None:
         self.stop.set()
+        self.wake.set()
         if self.thread.is_alive():
             self.thread.join(timeout=5.0)
         for lane in self.lanes:
@@ -287,11 +309,11 @@ class Dispatcher:
     def _loop(self) -> None:
         last_prune = last_sweep = 0.0
         while not self.stop.is_set():
+            self.wake.clear()
             for lane in self.lanes:
                 try:
-                    lane.collect()
-                    lane.enforce_time_limit()
-                    lane.fill()
+                    if lane.collect() + lane.enforce_time_limit() + lane.fill():
+                        self.generation += 1
                     if time.time() - last_sweep > SWEEP_EVERY_S:
                         self.events["orphans"] += lane.sweep()
                 except Exception:  # noqa: BLE001 - the loop must outlive any one job's trouble
@@ -302,7 +324,7 @@ class Dispatcher:
             if time.time() - last_prune > PRUNE_EVERY_S:
                 self._prune()
                 last_prune = time.time()
-            self.stop.wait(POLL_S)
+            self.wake.wait(IDLE_POLL_S)
 
     def _prune(self) -> None:
         try:

@@ -65,6 +65,7 @@ def learned_sizes(requests: list[DrapeRequest], person, model, refine: bool = Tr
     `refine`, refined from the largest down until the answer is settled (the module's
     docstring says when), the sizes below that predicted only; else every size predicted."""
     from tryon.learn.drape import learned_drape
+    from tryon.sizing.quick import refined_for_judging
 
     def predicted(req: DrapeRequest) -> tuple[DrapeResult, dict]:
         r = learned_drape(req, person=person, model=model)
@@ -75,7 +76,7 @@ def learned_sizes(requests: list[DrapeRequest], person, model, refine: bool = Tr
         return [r for r, _ in pairs], [j for _, j in pairs]
     results, judged = [None] * len(requests), [None] * len(requests)
     for k in reversed(range(len(requests))):
-        results[k] = learned_drape(requests[k], refine=True, person=person, model=model)
+        results[k] = refined_for_judging(requests[k], person, model)
         judged[k] = dict(judge_size(requests[k].size, results[k]), judged_on="refined drape")
         size = judged[k]["size"]
         if not judged[k]["fits"]:
