@@ -42,7 +42,8 @@ def test_refinement_settles_the_predicted_size_and_says_why_the_others_were_not(
 
     person, first = answered
     seen = []
-    best, reasons, judged, refined = refine_decisive(first, person, DrapeRequest(PERSON, garment="tshirt"),
+    best, reasons, judged, refined = refine_decisive([p.judged for p in first.sizes], first.recommended, person,
+                                                     DrapeRequest(PERSON, garment="tshirt"),
                                                      on_refined=lambda size, result: seen.append(size))
     assert first.recommended in refined and seen == list(refined)
     assert best in refined and reasons[0].startswith(best)

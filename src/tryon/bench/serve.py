@@ -88,6 +88,7 @@ class Tally:
     first_s: list[float] = field(default_factory=list)
     refined_s: list[float] = field(default_factory=list)
     body_s: list[float] = field(default_factory=list)
+    answer_s: list[float] = field(default_factory=list)  # from posting the fit to its first answer
     requests: int = 0
     errors: list[str] = field(default_factory=list)
     throttled: int = 0
@@ -196,12 +197,15 @@ def _shopper(port: int, seed: int, end: float, tally: Tally) -> None:
         got = _call(client, tally, end + DRAIN_S, "POST", "/v1/bodies", _person(rng), key=uuid.uuid4().hex)
         if got is None or got[0] != 200:
             tally.add("errors", f"body: {got}")
+            time.sleep(1.0)  # a shopper told no waits before trying again
             continue
         tally.add("body_s", time.time() - t0)
+        t_fit = time.time()
         got = _call(client, tally, end + DRAIN_S, "POST", "/v1/fits", {"body_id": got[1]["body_id"], "garment": "tshirt"},
                     key=uuid.uuid4().hex)
         if got is None or got[0] != 202:
             tally.add("errors", f"fit: {got}")
+            time.sleep(1.0)
             continue
         fit_id, status, answered = got[1]["fit_id"], "queued", False
         tally.add("fits", fit_id)
@@ -214,6 +218,7 @@ def _shopper(port: int, seed: int, end: float, tally: Tally) -> None:
             if not answered and got[1].get("recommended"):
                 answered = True
                 tally.add("first_s", time.time() - t0)
+                tally.add("answer_s", time.time() - t_fit)
         if status == "refined":
             tally.add("refined_s", time.time() - t0)
             tally.add("timings", got[1].get("timings", {}))
@@ -266,16 +271,19 @@ def run_load(server: Server, shoppers: int, duration_s: float, fault: str = "non
     return {"fault": fault, "shoppers": shoppers, "duration_s": round(duration_s, 1), "wall_s": round(wall, 1),
             "first_answer_p50_s": _pct(tally.first_s, 50), "first_answer_p95_s": _pct(tally.first_s, 95),
             "refined_p50_s": _pct(tally.refined_s, 50), "refined_p95_s": _pct(tally.refined_s, 95),
-            "body_p50_s": _pct(tally.body_s, 50), "requests_per_s": round(tally.requests / wall, 2),
+            "body_p50_s": _pct(tally.body_s, 50), "body_p95_s": _pct(tally.body_s, 95),
+            "fit_answer_p50_s": _pct(tally.answer_s, 50), "fit_answer_p95_s": _pct(tally.answer_s, 95),
+            "requests_per_s": round(tally.requests / wall, 2),
             "fits_posted": len(tally.fits), "fits_done": len(tally.refined_s), "errors": len(tally.errors),
             "error_examples": tally.errors[:5], "throttled": tally.throttled, "retries": tally.retries,
             "lost_jobs": lost, "lost_examples": which[:5], **_server_timings(tally.timings), **event}
 
 
 def _server_timings(timings: list[dict]) -> dict:
-    """Medians of what the server says its phases took (s), and how many sizes it refined."""
+    """Medians and 95th percentiles of what the server says its phases took (s), and of
+    how many sizes it refined."""
     keys = sorted({k for t in timings for k in t})
-    return {f"server_{k}_p50": _pct([t[k] for t in timings if k in t], 50) for k in keys}
+    return {f"server_{k}_p{q}": _pct([t[k] for t in timings if k in t], q) for k in keys for q in (50, 95)}
 
 
 def _inject(server: Server, fault: str) -> dict:
@@ -339,7 +347,7 @@ def probe_bad_requests(port: int) -> dict:
 
 
 def run_serve_bench(json_out: str, shoppers: int = 8, duration_s: float = 300.0, fault_duration_s: float = 90.0,
-                    workers: int = 2, answer_workers: int = 1, faults: tuple[str, ...] = ("worker_killed", "server_restarted"),
+                    workers: int = 2, answer_workers: int = 2, faults: tuple[str, ...] = ("worker_killed", "server_restarted"),
                     data: str | None = None) -> dict:
     runs = []
     with tempfile.TemporaryDirectory(prefix="tryon-bench-serve-") as tmp:

@@ -57,8 +57,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", default="tryon-data", help="folder for the database and the fits' files")
     p.add_argument("--workers", type=int, default=2,
                    help="workers that refine and simulate (at a lower priority than the first answers)")
-    p.add_argument("--answer-workers", type=int, default=1,
-                   help="workers that give first answers (every size predicted, a fraction of a second)")
+    p.add_argument("--answer-workers", type=int, default=2,
+                   help="workers that fit bodies and give first answers (every size predicted, a fraction of a "
+                        "second each)")
     p.add_argument("--ray-address", help="run the jobs as Ray tasks on this cluster (started with `ray start`; its "
                                          "nodes must see --data)")
     p.add_argument("--max-queue", type=int, default=64, help="fits waiting or running before POST /v1/fits answers 429")

@@ -29,7 +29,7 @@ from tryon.errors import TryonError
 from tryon.garment.drafts import GARMENTS
 from tryon.garment.sizes import SIZES
 from tryon.serve.dispatch import Dispatcher
-from tryon.serve.bodies import save_body
+from tryon.serve.bodies import fit_and_save_body, save_body
 from tryon.serve.jobs import body_path, first_phase, fit_folder
 from tryon.serve.store import DONE, Store, new_id
 
@@ -108,7 +108,7 @@ def create_app(settings: Settings) -> FastAPI:
     dispatcher = Dispatcher(store, settings.data, settings.workers, settings.time_limit_s, settings.retention_s,
                             settings.answer_workers, settings.ray_address)
     started = time.time()
-    ready = threading.Event()  # set once the body model is loaded (GET /health says `ready`)
+    ready = threading.Event()  # set once the body model is loaded here (GET /health: `ready` once the workers are warm too)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -162,6 +162,26 @@ def create_app(settings: Settings) -> FastAPI:
         store.add_body(request, result, body_id)
         return {"body_id": body_id, **result}
 
+    async def _fit_body(request: dict) -> dict:
+        """The quick body fit of `request`, saved; by an answer worker when one is free to
+        take it (the fit is torch work that would hold this process's other requests),
+        else in a thread here. Returns the API's answer."""
+        body_id = new_id("body")
+        path = str(body_path(settings.data, body_id))
+        fut = dispatcher.call(fit_and_save_body, request, path)
+        result = None
+        if fut is not None:
+            try:
+                result = await asyncio.wrap_future(fut)
+            except TryonError:
+                raise
+            except Exception:  # noqa: BLE001 - the worker died under it: fit it here instead
+                result = None
+        if result is None:
+            result = await run_in_threadpool(fit_and_save_body, request, path)
+        store.add_body(request, result, body_id)
+        return {"body_id": body_id, **result}
+
     @app.post(f"/{API_VERSION}/bodies")
     async def post_body(body: BodyIn, idempotency_key: str | None = Header(None)) -> dict:
         """The shopper's body: measurements of the fitted Anny body, and warnings."""
@@ -170,13 +190,10 @@ def create_app(settings: Settings) -> FastAPI:
 
             request = body.model_dump(exclude_none=True)
             try:
-                m = Measurements(**request)
-                m.validate()
-                fit = await run_in_threadpool(_quick_fit, m)
+                Measurements(**request).validate()
+                return await _fit_body(request)
             except TryonError as exc:
                 raise HTTPException(422, str(exc)) from exc
-            return _keep_body(fit, request, {"measurements": {k: round(v, 2) for k, v in fit.achieved.items()},
-                                             "warnings": list(fit.notes), "fit_s": round(fit.wall_s, 3)})
 
         return await _once(idempotency_key, "bodies", make)
 
@@ -280,7 +297,8 @@ def create_app(settings: Settings) -> FastAPI:
 
     @app.get("/health")
     async def health() -> dict:
-        return {"ok": True, "ready": ready.is_set(), "workers": settings.workers, "waiting": store.waiting()}
+        return {"ok": True, "ready": ready.is_set() and dispatcher.ready(), "workers": settings.workers,
+                "waiting": store.waiting()}
 
     @app.get("/metrics")
     async def metrics() -> dict:

@@ -41,7 +41,9 @@ ANSWER_TIME_LIMIT_S = 120.0
 def _warm_up(niceness: int) -> None:
     """Run in each new local worker: one thread (the workers share the cores; threads of
     one worker that wait on each other spin when it gets less than their count), a lower
-    priority if asked, and what a phase needs imported and loaded before the first job."""
+    priority if asked, and what a phase needs imported and loaded before the first job. An
+    answer worker (niceness 0) also fits a body and answers a fit once, so its compiled
+    kernels are ready before the first shopper's (a cold first answer takes seconds)."""
     import os
 
     from tryon.parallel.executors import one_thread_per_worker
@@ -60,8 +62,25 @@ def _warm_up(niceness: int) -> None:
     body_model()
     try:
         shipped_model("tshirt")
+        if not niceness:
+            _answer_once()
     except Exception:  # noqa: BLE001 - a missing model is reported by the job that needs it
         pass
+
+
+def _answer_once() -> None:
+    from tryon.body.amortised import quick_fit
+    from tryon.body.fit import Measurements
+    from tryon.io.threads import one_torch_thread
+    from tryon.sizing.quick import first_answer
+
+    with one_torch_thread():
+        person = quick_fit(Measurements(height_cm=170.0, weight_kg=65.0, gender="female"))
+        first_answer(person, "female", "tshirt")
+
+
+def _started() -> None:
+    """A job that returns once its worker has warmed up."""
 
 
 class LocalWorkers:
@@ -74,12 +93,20 @@ class LocalWorkers:
     def _new(self) -> ProcessPoolExecutor:
         pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_warm_up,
                                    initargs=(self.niceness,))
-        for _ in range(self.workers):  # the pool starts a process per job: start them all now, warmed up
-            pool.submit(time.sleep, 0.2)
+        # the pool starts a process per job when none is idle: start them all now, warmed up
+        self.warming = [pool.submit(_started) for _ in range(self.workers)]
         return pool
+
+    def warm(self) -> bool:
+        """Whether the workers have warmed up (their first jobs would not wait for it)."""
+        return all(f.done() for f in self.warming)
 
     def submit(self, *args) -> Future:
         return self.pool.submit(run_phase, *args)
+
+    def call(self, fn, *args) -> Future:
+        """`fn(*args)` in one of the workers, beside the phases."""
+        return self.pool.submit(fn, *args)
 
     def stop(self, futures: list[Future]) -> bool:
         """Stop these jobs; True when every other job of the pool was stopped with them."""
@@ -123,6 +150,14 @@ class RayWorkers:
         fut = ref.future()
         self.refs[fut] = ref
         return fut
+
+    def warm(self) -> bool:
+        return True
+
+    def call(self, fn, *args) -> Future:
+        import ray
+
+        return ray.remote(num_cpus=1, max_retries=1)(fn).remote(*args).future()
 
     def stop(self, futures: list[Future]) -> bool:
         import ray
@@ -272,6 +307,17 @@ class Dispatcher:
     def notify(self) -> None:
         self.wake.set()
 
+    def call(self, fn, *args) -> Future | None:
+        """`fn(*args)` run by the answer lane's workers (a body fit: the server's own
+        process stays free to answer); None when there are none or they cannot take it
+        now (the caller then runs it itself)."""
+        if not self.lanes:
+            return None
+        try:
+            return self.lanes[0].workers.call(fn, *args)
+        except Exception:  # noqa: BLE001 - a pool being replaced, a lost cluster
+            return None
+
     def start(self) -> None:
         if self.workers <= 0:
             return
@@ -302,6 +348,10 @@ class Dispatcher:
             import ray
 
             ray.shutdown()
+
+    def ready(self) -> bool:
+        """Whether the lanes' workers are warm (True with none)."""
+        return all(lane.workers.warm() for lane in self.lanes)
 
     def worker_pids(self) -> dict[str, list[int]]:
         return {lane.name: lane.workers.pids() for lane in self.lanes}

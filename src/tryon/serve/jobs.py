@@ -98,6 +98,7 @@ def _answer(store: Store, data: Path, fit_id: str, body_request: dict, req: dict
         write_scene(folder, tag, SceneArrays(p.x, p.garment.faces, first.body.vertices, first.body.faces, p.strain,
                                              None, p.skin_distance), req["fabric"])
         sizes.append(dict(_size_entry(p.judged), scene_url=f"/v1/files/{fit_id}/{tag}-scene.json"))
+    _keep_answer(folder, first)
     result = {"recommended": first.recommended, "reasons": first.reasons, "method": "learned", "sizes": sizes,
               "notes": first.notes, "timings": {"answer_s": round(time.perf_counter() - t0, 3)}}
     store.update(fit_id, "predicted", 0.3, result=result)
@@ -111,8 +112,8 @@ def _refine(store: Store, data: Path, fit_id: str, body_request: dict, req: dict
     from tryon.sizing.quick import refine_decisive
 
     t0 = time.perf_counter()
-    first = _first(body_request, req, person)
     folder = fit_folder(data, fit_id)
+    first = _kept_answer(folder) or _first_as_kept(_first(body_request, req, person))
     files: dict[str, dict] = {}
     previous = store.fit(fit_id).result or {}
 
@@ -121,7 +122,8 @@ def _refine(store: Store, data: Path, fit_id: str, body_request: dict, req: dict
         store.update(fit_id, "predicted", min(0.95, 0.3 + 0.3 * len(files)), result=previous)
 
     request = DrapeRequest(Measurements(**body_request), garment=req["garment"], fabric=req["fabric"])
-    best, reasons, judged, _ = refine_decisive(first, person, request, on_refined=on_refined)
+    best, reasons, judged, _ = refine_decisive(first["predicted"], first["recommended"], person, request,
+                                               on_refined=on_refined)
     sizes = []
     for j in judged:
         entry = _size_entry(j)
@@ -130,8 +132,37 @@ def _refine(store: Store, data: Path, fit_id: str, body_request: dict, req: dict
     timings = {**previous.get("timings", {}), "refine_s": round(time.perf_counter() - t0, 3),
                "refined_sizes": len(files)}
     store.update(fit_id, "refined", 1.0, result={"recommended": best, "reasons": reasons, "method": "learned+refine",
-                                                 "sizes": sizes, "notes": first.notes, "timings": timings})
+                                                 "sizes": sizes, "notes": first["notes"], "timings": timings})
     return "refined"
+
+
+ANSWER_FILE = "answer.pkl"
+
+
+def _first_as_kept(first) -> dict:
+    """What the refinement needs of a first answer."""
+    return {"predicted": [p.judged for p in first.sizes], "recommended": first.recommended, "notes": first.notes}
+
+
+def _keep_answer(folder: Path, first) -> None:
+    """The first answer's judgements, for the refinement to start from (not predicted again)."""
+    import pickle
+
+    from tryon.io.atomic import atomic_write
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_write(folder / ANSWER_FILE, "wb") as fh:
+        pickle.dump(_first_as_kept(first), fh, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _kept_answer(folder: Path) -> dict | None:
+    import pickle
+
+    try:
+        with open(folder / ANSWER_FILE, "rb") as fh:
+            return pickle.load(fh)  # noqa: S301 - written by the answer phase of this service
+    except (OSError, pickle.UnpicklingError, EOFError):
+        return None
 
 
 def _simulate(store: Store, data: Path, fit_id: str, body_request: dict, req: dict, person) -> str:

@@ -26,6 +26,7 @@ def write_scene(folder: Path, tag: str, s: SceneArrays, fabric: str) -> None:
     from tryon.drape.outputs import SKIN, face_to_vertex
     from tryon.io.atomic import atomic_write
     from tryon.io.json_safe import dumps_json
+    from tryon.io.packed import packed_layout, write_packed
     from tryon.render.appearance import appearance
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -41,15 +42,10 @@ def write_scene(folder: Path, tag: str, s: SceneArrays, fabric: str) -> None:
         pressure = np.asarray(s.pressure) / 1000.0
         arrays.append(("pressure", pressure.astype("<f4")))
         scales["pressure"] = float(max(0.5, np.percentile(pressure, 99)))
-    layout, offset = {}, 0
-    for name, a in arrays:
-        layout[name] = {"offset": offset, "count": int(a.size), "type": "uint32" if a.dtype.kind == "u" else "float32"}
-        offset += a.nbytes
+    layout = packed_layout(arrays)
     meta = {"layout": layout, "bin": f"{tag}-scene.bin", "garment_vertices": len(x),
             "colors": {"skin": list(SKIN), "cloth": list(appearance(fabric).color)}, "scales": scales,
             "units": {"strain": "strain %", "pressure": "contact pressure kPa", "ease": "ease cm (gap to the skin)"}}
-    with atomic_write(folder / f"{tag}-scene.bin", "wb") as fh:
-        for _, a in arrays:
-            fh.write(np.ascontiguousarray(a).tobytes())
+    write_packed(folder / f"{tag}-scene.bin", arrays)
     with atomic_write(folder / f"{tag}-scene.json") as fh:
         fh.write(dumps_json(meta))

@@ -102,10 +102,7 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
                                             ("body_faces", seq["body_faces"].astype(np.uint32))]
     if seq["pressure"] is not None:
         arrays.append(("pressure", seq["pressure"].astype(np.float32)))
-    layout, offset = {}, 0
-    for name, a in arrays:
-        layout[name] = {"offset": offset, "count": int(a.size)}
-        offset += a.nbytes
+    layout = packed_layout(arrays)
     title, info = _title_and_info(seq, animation)
     meta = {
         "title": title, "info": info, "frames": int(len(pos)), "times": [float(t) for t in seq["times"]],
@@ -126,9 +123,7 @@ def write_viewer(drape_dir: str | Path, animation: str | None = None, out: str |
                 shutil.copyfile(src, tmp / name)
         with atomic_write(tmp / "scene.json") as fh:
             fh.write(dumps_json(meta))
-        with atomic_write(tmp / "scene.bin", "wb") as fh:
-            for _, a in arrays:
-                fh.write(np.ascontiguousarray(a).astype(a.dtype.newbyteorder("<")).tobytes())
+        write_packed(tmp / "scene.bin", arrays)
     return out
 
 
