@@ -23,7 +23,8 @@ class HandWorkers:
         self.futures.append(Future())
         return self.futures[-1]
 
-    def stop(self, futures) -> bool:
+    def stop(self, futures) -> bool:  # as a local pool: stopping some replaces the pool
+        self.restart()
         return True
 
     def forget(self, fut) -> None:

@@ -14,6 +14,8 @@ def packed_layout(arrays: list[tuple[str, np.ndarray]]) -> dict[str, dict]:
     """Each array's byte offset, element count and type in the packed file."""
     layout, offset = {}, 0
     for name, a in arrays:
+        if a.dtype.kind not in "uf":
+            raise ValueError(f"{name}: pack float or unsigned integer arrays, not {a.dtype}")
         layout[name] = {"offset": offset, "count": int(a.size), "type": "uint32" if a.dtype.kind == "u" else "float32"}
         offset += a.size * 4
     return layout

@@ -177,6 +177,10 @@ def create_app(settings: Settings) -> FastAPI:
                 raise
             except Exception:  # noqa: BLE001 - the worker died under it: fit it here instead
                 result = None
+            except asyncio.CancelledError:
+                if not fut.cancelled():  # the request itself was cancelled
+                    raise
+                result = None  # the pool was replaced before the fit started
         if result is None:
             result = await run_in_threadpool(fit_and_save_body, request, path)
         store.add_body(request, result, body_id)
@@ -252,9 +256,9 @@ def create_app(settings: Settings) -> FastAPI:
         the status differs from `after`, or after `wait` seconds (long polling)."""
         if not ID["fit"].match(fit_id):
             raise HTTPException(404, f"no fit {fit_id[:40]!r}: fit ids look like fit_0123456789abcdef")
+        seen, read_at = dispatcher.generation, time.monotonic()  # read before the fit: no move is missed
         view = _fit_view(store, fit_id)
         deadline = time.monotonic() + wait
-        seen, read_at = dispatcher.generation, time.monotonic()
         while after is not None and view["status"] == after and time.monotonic() < deadline:
             await asyncio.sleep(0.02)
             # read the fit again when the dispatcher saw a job move (or once a second in any case)

@@ -79,8 +79,12 @@ def _answer_once() -> None:
         first_answer(person, "female", "tshirt")
 
 
-def _started() -> None:
-    """A job that returns once its worker has warmed up."""
+def _started() -> int:
+    """A job that returns (its worker's process id) once its worker has warmed up."""
+    import os
+
+    time.sleep(0.2)  # held long enough that each of the first jobs goes to a worker of its own
+    return os.getpid()
 
 
 class LocalWorkers:
@@ -98,8 +102,17 @@ class LocalWorkers:
         return pool
 
     def warm(self) -> bool:
-        """Whether the workers have warmed up (their first jobs would not wait for it)."""
-        return all(f.done() for f in self.warming)
+        """Whether every worker has warmed up (their first jobs would not wait for it)."""
+        if not all(f.done() for f in self.warming):
+            return False
+        pids = {f.result() for f in self.warming if not f.cancelled() and f.exception() is None}
+        if len(pids) < self.workers:  # one worker took two of the probes: ask the others again
+            try:
+                self.warming = [self.pool.submit(_started) for _ in range(self.workers)]
+            except Exception:  # noqa: BLE001 - a pool being replaced: not warm yet
+                pass
+            return False
+        return True
 
     def submit(self, *args) -> Future:
         return self.pool.submit(run_phase, *args)
@@ -244,7 +257,8 @@ class Lane:
 
     def enforce_time_limit(self) -> int:
         """Fail and stop the jobs past the time limit; how many."""
-        late = [f for f, job in self.running.items() if time.time() - job.started > self.time_limit_s]
+        late = [f for f, job in self.running.items()
+                if time.time() - job.started > self.time_limit_s and not job.future.done()]
         if not late:
             return 0
         for fit_id in late:
@@ -263,11 +277,13 @@ class Lane:
         """A fresh set of workers; every job the old ones held and did not finish is
         claimable again (a broken pool fails them all, so each is charged a try)."""
         self.events["worker_restarts"] += 1
-        for fit_id, job in self.running.items():
+        # the old workers stopped first (a Ray task cancelled), so no job runs twice
+        if not self.workers.stop([job.future for job in self.running.values()]):
+            self.workers.restart()
+        for fit_id, job in list(self.running.items()):
             if not job.finished_itself():
                 self.store.requeue_or_fail(fit_id, "a worker process died while it ran", job.phase)
         self.running.clear()
-        self.workers.restart()
 
     def sweep(self) -> int:
         """Claimed fits of this lane's phases that no worker holds (a claim whose
@@ -280,7 +296,7 @@ class Lane:
 
     def close(self) -> None:
         self.workers.close()
-        for fit_id, job in self.running.items():  # cut off here: claimable again at the next start
+        for fit_id, job in list(self.running.items()):  # cut off here: claimable again at the next start
             if not job.finished_itself():
                 self.store.requeue_or_fail(fit_id, "the server stopped while it ran", job.phase, charge=False)
         self.running.clear()

@@ -161,7 +161,7 @@ def _kept_answer(folder: Path) -> dict | None:
     try:
         with open(folder / ANSWER_FILE, "rb") as fh:
             return pickle.load(fh)  # noqa: S301 - written by the answer phase of this service
-    except (OSError, pickle.UnpicklingError, EOFError):
+    except Exception:  # noqa: BLE001 - missing or unreadable: the answer is predicted again
         return None
 
 

@@ -120,8 +120,9 @@ class VerdictSettled:
         return True
 
     def _close(self, before: dict, now: dict) -> bool:
-        return (abs(now["torso_ease_cm"] - before["torso_ease_cm"]) < self.ease_cm
-                and abs(now["overstrained_area_pct"] - before["overstrained_area_pct"]) < self.area_pct)
+        a, b = now["torso_ease_cm"], before["torso_ease_cm"]  # NaN for a garment with no torso panels
+        ease_close = (np.isnan(a) and np.isnan(b)) or abs(a - b) < self.ease_cm
+        return ease_close and abs(now["overstrained_area_pct"] - before["overstrained_area_pct"]) < self.area_pct
 
     def _stays(self, before: dict, now: dict, step: int) -> bool:
         """No thresholded number crosses its threshold by the horizon at its latest drift."""
@@ -219,6 +220,8 @@ def refine_decisive(predicted: list[dict], recommended: str, person: BodyFit, re
         elif i < names.index(lowest):
             j["not_refined"] = f"smaller than {lowest}, which the prediction chose and which fits"
         else:
-            j["not_refined"] = f"larger than {highest}, which fits"
+            below = [n for n in refined if names.index(n) < i and judged[names.index(n)]["fits"]]
+            fitting = max(below, key=names.index) if below else highest
+            j["not_refined"] = f"larger than {fitting}, which fits"
     best, reasons = recommend(judged)
     return best, reasons, judged, refined

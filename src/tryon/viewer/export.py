@@ -24,6 +24,7 @@ import torch
 from tryon.errors import InputFileError, TryonError
 from tryon.io.atomic import atomic_output_dir, atomic_write
 from tryon.io.json_safe import dumps_json
+from tryon.io.packed import packed_layout, write_packed
 from tryon.render.appearance import appearance
 
 STATIC_FILES = ("index.html", "viewer.js", "meshes.js", "three-bundle.min.js", "LICENSE-three.txt")
