@@ -21,12 +21,16 @@ demo: $(STAMP)
 	$(BIN)/tryon drape --height-cm 172 --weight-kg 84 --gender male --garment tshirt --size M --fabric gray-interlock --out out/demo
 	@echo "demo outputs: out/demo (render_front/back/side.png, fit_map.png, pressure_map.png, garment.obj, body.obj, tryon.glb, report.json)"
 
+# the suite on TEST_WORKERS processes (pytest-xdist; default: one per core, at most 4,
+# since each worker holds the body model and the simulator's threads)
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
+
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS)
 
 # the fast tier (under 2 minutes): no drapes, Anny fits, Ray sessions or long runs
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -m "not slow and not anny and not ray"
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) -m "not slow and not anny and not ray"
 
 bench: $(STAMP)
 	$(BIN)/tryon bench sim --json out/bench_sim.json

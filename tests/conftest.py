@@ -12,6 +12,15 @@ import torch
 
 os.environ.setdefault("TQDM_DISABLE", "1")
 torch.set_num_threads(1)
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # Several test processes share the cores (`make test` runs one per core): each runs the
+    # compiled kernels on one thread (the tests of thread-count invariance ask for two
+    # themselves), and OpenMP threads, here and in the processes tests start, sleep instead
+    # of spinning while they wait, so that no process burns a core another one needs.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    import numba
+
+    numba.set_num_threads(1)
 
 
 @pytest.fixture

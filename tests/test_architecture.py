@@ -98,3 +98,26 @@ def test_time_advances_only_in_the_run_loop():
                     and len(node.args) >= 2):  # solver.step(state, dt), not an optimiser's step()
                 bad.append(f"{rel}:{node.lineno}")
     assert bad == []
+
+
+def _calls_steps(node: ast.AST) -> bool:
+    return isinstance(node, ast.Call) and (
+        (isinstance(node.func, ast.Name) and node.func.id in ("steps", "sim_steps"))
+        or (isinstance(node.func, ast.Attribute) and node.func.attr == "steps"))
+
+
+def test_no_hand_time_loops():
+    """Runs use `run` (or `advance` for one step) with the loop's policies; iterating
+    `steps(...)` by hand is left to the benches that time single steps and to the
+    time-parallel segment, which hands control back between steps."""
+    allowed = {"sim/loop.py", "bench/sim.py", "bench/robustness.py", "bench/parallel.py", "parallel/segment.py"}
+    bad = []
+    for path in SRC.rglob("*.py"):
+        rel = str(path.relative_to(SRC))
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "next"
+                    and node.args and _calls_steps(node.args[0]) and rel != "sim/loop.py"):
+                bad.append(f"{rel}:{node.lineno} next(steps(...))")
+            elif isinstance(node, (ast.For, ast.comprehension)) and _calls_steps(node.iter) and rel not in allowed:
+                bad.append(f"{rel}:{node.iter.lineno} a loop over steps(...)")
+    assert bad == []

@@ -46,7 +46,7 @@ def test_the_shipped_model_reproduces_its_card_on_its_shipped_held_out_drapes():
 @pytest.mark.slow
 def test_bench_learned_without_data_judges_the_shipped_model_on_its_held_out_drapes(tmp_path):
     out = tmp_path / "bench.json"
-    assert main(["bench", "learned", "--quick", "--json", str(out)]) == 0
+    assert main(["bench", "learned", "--quick", "--per-split", "2", "--json", str(out)]) == 0
     rep = json.loads(out.read_text())
     assert rep["model"] == "shipped" and rep["data"] == str(shipped_eval_data_path("tshirt"))
     learned = {r["split"]: r for r in rep["records"] if r["method"] == "learned"}

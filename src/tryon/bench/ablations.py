@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tryon.bench.records import progress_line
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
 from tryon.io.json_safe import dumps_json
@@ -93,6 +94,8 @@ def run_ablations(json_path: str | Path, data_dir: str | Path, names: list[str] 
     records = []
     for n in names:
         config = ablation_config(n, TrainConfig(epochs=epochs))
+        if progress:
+            progress_line("ablations", f"training {n!r} ({len(records) + 1} of {len(names)}), {epochs} epochs", t0)
         t = time.perf_counter()
         model = train_drape(data_dir, folder / n, config, progress=progress)
         ts = training_set(data, model.priors, model.region, progress=False)

@@ -21,13 +21,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tryon.bench.records import progress_line
 from tryon.io.atomic import atomic_write
 from tryon.io.json_safe import dumps_json
 
 SPLITS = ("test", "extrapolation")
 
 
-def _refined(model, data, judge, learned) -> tuple[np.ndarray, float, float]:
+def _refined(model, data, judge, learned, started: float) -> tuple[np.ndarray, float, float]:
     """The learned predictions relaxed by the simulator: (positions, inference ms, mean refine s)."""
     from tryon.fabric import load_fabric
     from tryon.learn.data import GENDERS
@@ -41,13 +42,14 @@ def _refined(model, data, judge, learned) -> tuple[np.ndarray, float, float]:
         garment = model.reference_garment(GENDERS[int(judge.ts.gender[i])], sizes[int(judge.ts.size[i])])
         x, stats = refine_drape(pred[i].astype(float), garment, body, fabric)
         out[i], _ = x, secs.append(stats["refine_s"])
+        progress_line("learned", f"refined {i + 1} of {len(judge.bodies)} in {stats['refine_s']:.1f} s", started)
     return out, ms, float(np.mean(secs))
 
 
 def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: str | Path | None = None,
                       quick: bool = False, per_split: int | None = None) -> dict:
     """Judge every method on the held-out splits (at most `per_split` drapes of each, evenly
-    spread; `quick`: 6) and write the records to `json_path`."""
+    spread; `quick` without `per_split`: 6) and write the records to `json_path`."""
     from tryon.dataset.loading import load_drape_dataset
     from tryon.learn.baselines import NearestNeighbour, TailorNetPCA
     from tryon.learn.data import training_set
@@ -78,17 +80,18 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
     picture = None
     for split in SPLITS:
         sub = ts.subset(ts.split == split)
-        limit = 6 if quick else per_split
+        limit = per_split if per_split is not None else (6 if quick else None)
         if limit is not None and len(sub.rows) > limit:  # evenly spread over the split's bodies and sizes
             sub = sub.subset(np.unique(np.linspace(0, len(sub.rows) - 1, limit).round().astype(int)))
         if len(sub.rows) == 0:
             continue
+        progress_line("learned", f"{split} split: {len(sub.rows)} drapes, every method", t0)
         judge = Judge(data, sub, model)
         methods = {"learned": timed(lambda s: predict_set(model, s), sub, one_learned(sub)),
                    "skinning": timed(lambda s: s.prior, sub)}
         methods.update({name: timed(b.predict, sub) for name, b in baselines.items()})
         rows = {name: judge.record(name, split, pred, ms) for name, (pred, ms) in methods.items()}
-        refined = _refined(model, data, judge, methods["learned"])
+        refined = _refined(model, data, judge, methods["learned"], t0)
         rows["learned+refine"] = judge.record("learned+refine", split, *refined)
         if split == "test":
             picture = comparison_picture(model, judge, methods["learned"][0], refined[0], data.manifest.spec["fabric"])
@@ -97,6 +100,8 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         records.extend(rows.values())
     from tryon.bench.learned_vs_drape import outside_dataset_records
 
+    if not quick:
+        progress_line("learned", "people outside the dataset: learned and refined against tryon drape", t0)
     outside = "left out of --quick" if quick else outside_dataset_records(model, data.manifest.spec["fabric"])
     out = {"bench": "learned", "data": str(data_dir), "model": str(model_path or "shipped"), "per_split": per_split,
            "baselines": sorted(baselines) if baselines else "nearest and tailornet-pca need the dataset's training "

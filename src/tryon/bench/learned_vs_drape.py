@@ -60,7 +60,11 @@ def outside_body_record(gender: str, height_cm: float, weight_kg: float, model, 
 
 
 def outside_dataset_records(model, fabric: str, bodies=OUTSIDE_BODIES, progress: bool = True) -> list[dict]:
-    from tqdm import tqdm
+    from tryon.bench.records import progress_line
 
-    return [outside_body_record(g, h, w, model, fabric)
-            for g, h, w in tqdm(bodies, desc="bodies outside the dataset", disable=not progress or None)]
+    records = []
+    for g, h, w in bodies:
+        records.append(outside_body_record(g, h, w, model, fabric))
+        if progress:
+            progress_line("learned", f"outside the dataset: {len(records)} of {len(bodies)} people ({g}, {h:g} cm, {w:g} kg)")
+    return records

@@ -8,12 +8,15 @@ The pelvis (root bone) lies on the z axis. The rest pose is Anny's own (arms abo
 turns it into the A-pose or T-pose.
 
 The first use builds Anny's blend-shape cache (about 90 s, about 1.1 GB) in
-``ANNY_CACHE_DIR`` (default ``~/.cache/anny``); later loads take under a second.
+``ANNY_CACHE_DIR`` (default ``~/.cache/anny``); later loads take under a second. Anny
+writes its cache files in place, so processes that start together (test workers, service
+workers) take a lock on the cache folder while one of them builds or loads it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import io
 import logging
 import os
@@ -27,6 +30,7 @@ import numpy as np
 import torch
 
 from tryon.errors import TryonError
+from tryon.io.quiet import init_warp_quietly
 
 DTYPE = torch.float64
 
@@ -151,6 +155,18 @@ def anny_cache_dir() -> Path:
     return Path(os.environ.get("ANNY_CACHE_DIR", str(Path.home() / ".cache" / "anny")))
 
 
+@contextlib.contextmanager
+def cache_lock(cache: Path):
+    """An exclusive lock on the Anny cache folder for the block (other processes wait)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    with open(cache / ".tryon-build.lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 @lru_cache(maxsize=1)
 def body_model() -> "BodyModel":
     """The process-wide body model (built or loaded from the cache on first use)."""
@@ -172,7 +188,8 @@ class BodyModel:
         t0 = time.perf_counter()
         os.environ.setdefault("ANNY_CACHE_DIR", str(cache))
         anny.paths.set_anny_cache_path(cache)
-        with contextlib.redirect_stdout(io.StringIO()):  # warp prints its banner on import
+        init_warp_quietly()  # anny skins with warp
+        with cache_lock(cache), contextlib.redirect_stdout(io.StringIO()):
             self.anny = anny.Anny(local_changes=list(LOCAL_CHANGES)).to(DTYPE)
         self.anny.requires_grad_(False)
         log.info("Anny loaded in %.1f s", time.perf_counter() - t0)

@@ -315,30 +315,32 @@ def simulate_poses(spec: dict, rest: RestDrape, shape, poses: np.ndarray, out: d
 
 def _record_poses(solver, model, spec: dict, shape, record_at: np.ndarray, out: dict, first: int) -> None:
     from tryon.drape.fit_metrics import penetration
-    from tryon.sim.loop import steps
+    from tryon.sim.loop import FailSafeLimit, TopSpeed, run
     from tryon.sim.model import Control
 
     dt = step_size(spec)
-    k, failsafe = 0, 0
-    control = Control(air_damping=spec["drape"]["air_damping"])
-    for rec in steps(solver, model.initial_state(), dt, 0, int(round(record_at[-1] / dt)) + 1, control):
-        speed = float(np.linalg.norm(rec.state.v.numpy(), axis=1).max())
-        out["max_speed"] = np.asarray(max(float(out["max_speed"]), speed))
-        if speed > PLAUSIBLE_SPEED:
-            raise SequenceFailed(f"the cloth was flung at {speed:.1f} m/s at t={rec.state.t:.2f} s")
-        failsafe += int(rec.stats.fallback)
-        if failsafe >= MAX_FAILSAFE_STEPS:
-            raise SequenceFailed(f"the collision response needed the rigid fail-safe {failsafe} times by "
-                                 f"t={rec.state.t:.2f} s (cloth pinched by the pose)")
+    k = 0
+
+    def record(rec) -> bool:
+        nonlocal k
         while k < len(record_at) and rec.state.t >= record_at[k] - 0.5 * dt:
             x = rec.state.x.numpy()
             out["x"][first + k] = x
-            out["cloth_speed"][first + k] = speed
+            out["cloth_speed"][first + k] = top.speeds.max()
             body_now = model.obstacles.vertices_at(rec.state.t)
             out["penetration_pct"][first + k] = penetration(x, body_now, shape.faces)["penetration_pct"]
             k += 1
-        if k == len(record_at):
-            break
+        return k == len(record_at)
+
+    top = TopSpeed(PLAUSIBLE_SPEED, explain=lambda rec, speed: f"the cloth was flung at {speed:.1f} m/s at t={rec.state.t:.2f} s",
+                   error=SequenceFailed)
+    failsafe = FailSafeLimit(total=MAX_FAILSAFE_STEPS, error=SequenceFailed, explain=lambda kind, rec, n: (
+        f"the collision response needed the rigid fail-safe {n} times by t={rec.state.t:.2f} s (cloth pinched by the pose)"))
+    try:
+        run(solver, model.initial_state(), dt, int(round(record_at[-1] / dt)) + 1, observers=[top, failsafe, record],
+            control=Control(air_damping=spec["drape"]["air_damping"]))
+    finally:
+        out["max_speed"] = np.asarray(max(float(out["max_speed"]), top.fastest))
 
 
 @dataclass

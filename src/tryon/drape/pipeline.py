@@ -28,13 +28,11 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from tryon.body.fit import BodyFit, Measurements, fit_body
 from tryon.body.measure import drafting_measurements, made_to_measure_measurements
@@ -319,8 +317,8 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
     from tryon.sim.collision import push_outside
-    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions, StepStats
-    from tryon.sim.loop import steps
+    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
+    from tryon.sim.loop import FailSafeLimit, FlungRedo, FrameRecorder, RestDrift, StepLog, TimeLimit, TopSpeed, run
     from tryon.sim.model import Control
     from tryon.sim.obstacles import Motion, Obstacle
 
@@ -343,99 +341,66 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
     solver = ImplicitEulerSolver(model, StepOptions(max_substep_depth=DRAPE_SUBSTEP_DEPTH))
     state = model.initial_state()
     binding = SkinBinding(state.x.numpy(), start.vertices, start.faces)
-    t_end = morph_time + request.max_settle_time
-    out_frames, out_times = [state.x.numpy().copy()], [0.0]
-    stats = {"steps": 0, "retried_steps": 0, "failsafe_steps": 0, "speed_recoveries": [], "max_step_s": 0.0,
-             "max_speed": 0.0}  # the fastest vertex after any accepted step (m/s); flung steps are in speed_recoveries
-    totals = StepStats()
-    stats["start_body_crossings"] = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
-                                                f"the dressed {garment.name}")
+    start_crossings = check_start(state.x.numpy(), garment.faces, start.vertices, start.faces,
+                                  f"the dressed {garment.name}")
     settle_dt = max(request.dt, min(request.settle_dt_ratio * request.dt, MAX_SETTLE_DT))
-    n_steps = int(np.ceil(morph_time / request.dt + request.max_settle_time / settle_dt))
-    bar = tqdm(total=n_steps, desc="draping", unit="step", disable=not progress, leave=False)
-    settled = False
-    streak = 0
-    window: deque = deque(maxlen=REST_WINDOW + 1)
-    drift = float("inf")
-    sim_start = time.perf_counter()
 
-    def advance(s, dt):
-        record = next(steps(solver, s, dt, control=morphing if s.t < morph_time else holding))
-        s, st = record.state, record.stats
-        totals.merge(st)
-        stats["retried_steps"] += int(st.retried)
-        stats["failsafe_steps"] += int(st.fallback)
-        return s, st
+    def carried(k: int, s):  # the cloth near the skin is carried with the changing body, physics does the rest
+        if s.t >= morph_time:
+            return s
+        now = model.obstacles.vertices_at(s.t)
+        x = s.x.numpy() + binding.motion(model.obstacles.vertices_at(s.t - request.dt), now)
+        x, _, _ = push_outside(x, now, start.faces, request.thickness)
+        return type(s)(torch.from_numpy(x), s.v, s.t)
 
-    while state.t < t_end - 1e-9:
-        if state.t < morph_time:  # the cloth near the skin is carried with the changing body, physics does the rest
-            now = model.obstacles.vertices_at(state.t)
-            carried = state.x.numpy() + binding.motion(model.obstacles.vertices_at(state.t - request.dt), now)
-            carried, _, _ = push_outside(carried, now, start.faces, request.thickness)
-            state = type(state)(torch.from_numpy(carried), state.v, state.t)
-        tic = time.perf_counter()
-        before = state
-        dt = request.dt if state.t < morph_time else settle_dt
-        state, st = advance(state, dt)
-        speeds = np.linalg.norm(state.v.numpy(), axis=1)
-        if speeds.max() > PLAUSIBLE_SPEED:
-            # flung: redo the step from its start, without its velocities, in two halves
-            fast = np.argsort(-speeds)[:5]
-            record = {"t": round(before.t, 4), "speed_m_s": round(float(speeds.max()), 2), "vertices": fast.tolist()}
-            retry = type(before)(before.x, torch.zeros_like(before.v), before.t)
-            for _ in range(2):
-                retry, st2 = advance(retry, 0.5 * dt)
-                st.fallback |= st2.fallback
-            speeds = np.linalg.norm(retry.v.numpy(), axis=1)
-            if speeds.max() > PLAUSIBLE_SPEED:
-                raise SimulationError(
-                    f"draping {garment.name}: at t={before.t:.2f}s the cloth moves at {speeds.max():.1f} m/s even after "
-                    f"redoing the step in halves from rest (at most {PLAUSIBLE_SPEED} m/s is plausible); fastest "
-                    f"{_where(retry.x.numpy(), np.argsort(-speeds))}; {stall_diagnosis(solver, retry.x.numpy())}")
-            record["recovered_speed_m_s"] = round(float(speeds.max()), 3)
-            stats["speed_recoveries"].append(record)
-            state = retry
-        # a fail-safe step whose rigid zones ride along with the body still makes progress; one
-        # that leaves the cloth where it was (frozen) does not
-        moved = float(np.abs(state.x.numpy() - before.x.numpy()).max())
-        streak = streak + 1 if st.fallback and moved < FROZEN else 0
-        if streak >= FAILSAFE_STREAK:
-            raise SimulationError(
-                f"draping {garment.name} makes no progress: at t={state.t:.2f}s the collision response has failed "
-                f"{streak} steps in a row and the rigid fail-safe froze the cloth; {stall_diagnosis(solver, state.x.numpy())}")
-        if stats["failsafe_steps"] >= MAX_FAILSAFE_STEPS:
-            raise SimulationError(
-                f"draping {garment.name} makes no progress: by t={state.t:.2f}s the collision response has failed in "
-                f"{stats['failsafe_steps']} steps and needed the rigid fail-safe (the body presses the cloth into itself; "
-                f"is size {request.size} far too small for this body?); {stall_diagnosis(solver, state.x.numpy())}")
-        stats["steps"] += 1
-        stats["max_step_s"] = max(stats["max_step_s"], time.perf_counter() - tic)
-        bar.update(1)
-        if stats["steps"] % 4 == 0:
-            out_frames.append(state.x.numpy().copy())
-            out_times.append(state.t)
-        speed = float(speeds.max())
-        stats["max_speed"] = max(stats["max_speed"], speed)
-        window.append((state.t, state.x.numpy().copy()))
-        drift = float(np.linalg.norm(window[-1][1] - window[0][1], axis=1).max()) / (window[-1][0] - window[0][0]) \
-            if len(window) == REST_WINDOW + 1 else float("inf")
-        bar.set_postfix(speed=f"{speed:.3f}")
-        if state.t >= morph_time and drift < request.rest_speed and not st.fallback:
-            settled = True
-            break
-        if time.perf_counter() - sim_start > request.time_limit_s:  # checked between steps
-            raise SimulationError(over_time_diagnosis(garment.name, request.time_limit_s, state, stats, drift, speeds,
-                                                      stall_diagnosis(solver, state.x.numpy())))
-    bar.close()
+    log, top = StepLog(), TopSpeed()
+    rest = RestDrift(REST_WINDOW, request.rest_speed, after_t=morph_time)
+    recorder = FrameRecorder(every=4, last=-1, first=state)
+
+    def flung_why(before, redone, speeds) -> str:
+        return (f"draping {garment.name}: at t={before.t:.2f}s the cloth moves at {speeds.max():.1f} m/s even after "
+                f"redoing the step in halves from rest (at most {PLAUSIBLE_SPEED} m/s is plausible); fastest "
+                f"{_where(redone.x.numpy(), np.argsort(-speeds))}; {stall_diagnosis(solver, redone.x.numpy())}")
+
+    def stuck_why(kind: str, rec, count: int) -> str:
+        stall = stall_diagnosis(solver, rec.state.x.numpy())
+        if kind == "streak":
+            return (f"draping {garment.name} makes no progress: at t={rec.state.t:.2f}s the collision response has "
+                    f"failed {count} steps in a row and the rigid fail-safe froze the cloth; {stall}")
+        return (f"draping {garment.name} makes no progress: by t={rec.state.t:.2f}s the collision response has failed "
+                f"in {count} steps and needed the rigid fail-safe (the body presses the cloth into itself; is size "
+                f"{request.size} far too small for this body?); {stall}")
+
+    def counts() -> dict:
+        return {"steps": log.steps, "retried_steps": log.retried, "failsafe_steps": log.failsafe,
+                "speed_recoveries": log.flung, "max_step_s": log.slowest_s, "max_speed": top.fastest}
+
+    def over_time(rec) -> str:
+        return over_time_diagnosis(garment.name, request.time_limit_s, rec.state, counts(), rest.drift, top.speeds,
+                                   stall_diagnosis(solver, rec.state.x.numpy()))
+
+    outcome = run(solver, state, lambda k, t: request.dt if t < morph_time else settle_dt, until=None,
+                  until_time=morph_time + request.max_settle_time,
+                  observers=[FailSafeLimit(MAX_FAILSAFE_STEPS, FAILSAFE_STREAK, FROZEN, explain=stuck_why), log, recorder,
+                             top, rest],
+                  control=lambda k, t: morphing if t < morph_time else holding, before_step=carried,
+                  redo_flung=FlungRedo(PLAUSIBLE_SPEED, explain=flung_why),
+                  time_limit=TimeLimit(request.time_limit_s, explain=over_time),
+                  progress="draping" if progress else None,
+                  total=int(np.ceil(morph_time / request.dt + request.max_settle_time / settle_dt)))
+    state = outcome.state
+    out_frames, out_times = recorder.positions, recorder.times
     if out_times[-1] != state.t:
         out_frames.append(state.x.numpy().copy())
         out_times.append(state.t)
     # back to the person's place: each frame moved as far as the body had moved by then
     moved = np.interp(out_times, times, smoothstep(np.linspace(0.0, 1.0, len(times))))
     out_frames = [f + w * shift for f, w in zip(out_frames, moved)]
-    stats.update({"substeps": totals.substeps, "seconds": totals.seconds})
-    stats.update({"simulated_s": state.t, "morph_s": morph_time, "settled": settled, "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max()),
-                  "final_rest_speed": drift})
+    stats = counts()
+    stats["start_body_crossings"] = start_crossings
+    stats.update({"substeps": outcome.totals.substeps, "seconds": outcome.totals.seconds})
+    stats.update({"simulated_s": state.t, "morph_s": morph_time, "settled": rest.settled,
+                  "final_max_speed": float(np.linalg.norm(state.v.numpy(), axis=1).max()), "final_rest_speed": rest.drift})
     stats["body_shift_m"] = shift.tolist()
     return state.x.numpy() + shift, out_frames, out_times, stats, solver
 

@@ -11,7 +11,7 @@ import torch
 from tryon.errors import SimulationError
 from tryon.parallel.hierarchy import Hierarchy
 from tryon.sim.integrator import ImplicitEulerSolver
-from tryon.sim.loop import steps
+from tryon.sim import loop
 from tryon.sim.model import ClothState
 
 
@@ -34,7 +34,7 @@ class CoarseRun:
         x, v = self.states[self.position]
         t = self.position * self.hier.fine.dt
         state = ClothState(torch.from_numpy(x.copy()), torch.from_numpy(v.copy()), t)
-        rec = next(steps(self.solver, state, self.hier.coarse.dt))
+        rec = loop.advance(self.solver, state, self.hier.coarse.dt)
         new = rec.state
         self.seconds.append(rec.seconds)
         self.position += self.r

@@ -41,7 +41,7 @@ from tryon.sim.collision import count_intersections, stitch_alias
 from tryon.sim.collision import push_outside as surface_push_outside
 from tryon.sim.collision.intersections import edge_face_intersections
 from tryon.sim.integrator import ImplicitEulerSolver
-from tryon.sim.loop import steps
+from tryon.sim.loop import advance
 from tryon.sim.model import ClothState
 
 
@@ -237,7 +237,7 @@ def recover_details(
     tol = options.tolerance * model.mesh.size()
     for _ in range(limit):
         try:
-            stepped = next(steps(solver, state, dt)).state
+            stepped = advance(solver, state, dt).state
         except SimulationError as exc:
             report.failed = str(exc)
             break

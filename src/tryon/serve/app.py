@@ -29,7 +29,7 @@ from tryon.errors import TryonError
 from tryon.garment.drafts import GARMENTS
 from tryon.garment.sizes import SIZES
 from tryon.serve.dispatch import Dispatcher
-from tryon.serve.bodies import fit_and_save_body, save_body
+from tryon.serve.bodies import fit_and_save_body, quick_body, save_body
 from tryon.serve.jobs import body_path, first_phase, fit_folder
 from tryon.serve.store import DONE, Store, new_id
 
@@ -350,19 +350,11 @@ def _photo_body(paths, height_cm, gender, weight_kg, age):
 
 
 def _warm_up_bodies(ready: threading.Event) -> None:
-    from tryon.body.fit import Measurements
-
+    """Load the body model here too: a body fit falls back to a thread of this process
+    when its worker fails."""
     try:
-        _quick_fit(Measurements(height_cm=170.0, weight_kg=65.0, gender="female"))
+        quick_body({"height_cm": 170.0, "weight_kg": 65.0, "gender": "female"})
     except Exception:  # noqa: BLE001 - a real request will report what is wrong
         pass
     finally:
         ready.set()
-
-
-def _quick_fit(m):
-    from tryon.body.amortised import quick_fit
-    from tryon.io.threads import one_torch_thread
-
-    with one_torch_thread():
-        return quick_fit(m)

@@ -32,16 +32,22 @@ def load_body(path: str | Path) -> BodyFit:
     return dataclasses.replace(fit, shape=shape)
 
 
-def fit_and_save_body(request: dict, path: str) -> dict:
-    """Fit the body of `request` (a shopper's numbers: `tryon.body.fit.Measurements`'
-    fields) with the quick fit, save it at `path` and return what the API answers of it.
-    Run by an answer worker (no fit holds the server's own process), or in a thread."""
+def quick_body(request: dict):
+    """The quick fit (`tryon.body.amortised.quick_fit`, on one torch thread) of a shopper's
+    numbers: a `BodyFit`."""
     from tryon.body.amortised import quick_fit
     from tryon.body.fit import Measurements
     from tryon.io.threads import one_torch_thread
 
     with one_torch_thread():
-        fit = quick_fit(Measurements(**request))
+        return quick_fit(Measurements(**request))
+
+
+def fit_and_save_body(request: dict, path: str) -> dict:
+    """Fit the body of `request` (a shopper's numbers: `tryon.body.fit.Measurements`'
+    fields) with the quick fit, save it at `path` and return what the API answers of it.
+    Run by an answer worker (no fit holds the server's own process), or in a thread."""
+    fit = quick_body(request)
     save_body(fit, Path(path))
     return {"measurements": {k: round(v, 2) for k, v in fit.achieved.items()}, "warnings": list(fit.notes),
             "fit_s": round(fit.wall_s, 3)}

@@ -157,6 +157,7 @@ class RayWorkers:
 
         self.workers, self.refs = workers, {}
         self.task = ray.remote(num_cpus=1, max_retries=0)(run_phase)
+        self._remote: dict = {}  # function -> its Ray task, wrapped once (each wrapping ships the function again)
 
     def submit(self, *args) -> Future:
         ref = self.task.remote(*args)
@@ -170,7 +171,9 @@ class RayWorkers:
     def call(self, fn, *args) -> Future:
         import ray
 
-        return ray.remote(num_cpus=1, max_retries=1)(fn).remote(*args).future()
+        if fn not in self._remote:
+            self._remote[fn] = ray.remote(num_cpus=1, max_retries=1)(fn)
+        return self._remote[fn].remote(*args).future()
 
     def stop(self, futures: list[Future]) -> bool:
         import ray
