@@ -121,3 +121,17 @@ def test_no_hand_time_loops():
             elif isinstance(node, (ast.For, ast.comprehension)) and _calls_steps(node.iter) and rel not in allowed:
                 bad.append(f"{rel}:{node.iter.lineno} a loop over steps(...)")
     assert bad == []
+
+
+def test_geometry_and_collision_are_used_by_their_public_names():
+    """Outside `tryon.sim`, the geometry and the collision handling are imported from their
+    packages (`from tryon.sim.geometry import push_outside`), never from their modules."""
+    bad = []
+    for path in SRC.rglob("*.py"):
+        rel = path.relative_to(SRC)
+        if rel.parts[0] == "sim":
+            continue
+        for module, _, line in _imports(path):
+            if module.startswith(("tryon.sim.geometry.", "tryon.sim.collision.")):
+                bad.append(f"{rel}:{line} {module}")
+    assert bad == []

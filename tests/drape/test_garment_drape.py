@@ -24,7 +24,8 @@ from tryon.garment.sizes import size_measurements
 from tryon.drape.dress import SEAMS_CLOSED, DressedGarment, dress_pattern, place_pattern
 from tryon.garment.triangulate import merge_stitched, triangulate_pattern
 from tryon.sim import collision as col
-from tryon.sim.collision.intersections import edge_face_intersections
+from tryon.sim import geometry as geo
+from tryon.sim.geometry import edge_face_intersections
 
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
 
@@ -70,7 +71,7 @@ def test_trousers_start_closed_and_uncrossed_and_dress_side_seams_start_closed(f
     gaps = np.linalg.norm(x[mesh.stitches[:, 0]] - x[mesh.stitches[:, 1]], axis=1)
     assert gaps.max() < SEAMS_CLOSED
     pos, faces, _, _ = merge_stitched(mesh, x)
-    assert col.count_intersections(pos, faces, _edges(faces), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+    assert geo.count_intersections(pos, faces, _edges(faces), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
                                    np.zeros((0, 2), np.int64))[0] == 0
     # the two legs meet only at the crotch seams, on the midline
     for k, panel in enumerate(p.panels):
@@ -100,7 +101,7 @@ def test_the_largest_womens_trousers_ease_the_back_inseam_and_start_closed():
     x = place_pattern(mesh, body)
     assert np.linalg.norm(x[mesh.stitches[:, 0]] - x[mesh.stitches[:, 1]], axis=1).max() < SEAMS_CLOSED
     pos, faces, _, _ = merge_stitched(mesh, x)
-    assert col.count_intersections(pos, faces, _edges(faces), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+    assert geo.count_intersections(pos, faces, _edges(faces), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
                                    np.zeros((0, 2), np.int64))[0] == 0
 
 

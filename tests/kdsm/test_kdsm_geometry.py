@@ -45,7 +45,7 @@ def test_kuhn_cubes_fill_the_cube_with_six_positive_tets():
 
 
 def test_the_volume_covers_the_band_around_the_body_and_is_closed(scene):
-    from tryon.sim.collision.intersections import signed_obstacle_distance
+    from tryon.sim.geometry import signed_obstacle_distance
 
     volume, body, x = scene["volume"], scene["body"], scene["garment"].vertices
     assert (volume.signed_volumes() > 0).all()
@@ -71,7 +71,7 @@ def test_the_volume_covers_the_band_around_the_body_and_is_closed(scene):
 
 
 def test_volume_skinning_blends_the_bodys_weights(scene):
-    from tryon.sim.collision.intersections import nearest_surface_locations
+    from tryon.sim.geometry import nearest_surface_locations
 
     volume, skin, shape, body = scene["volume"], scene["skin"], scene["shape"], scene["body"]
     assert np.allclose(skin.weight.sum(1), 1.0) and (skin.weight >= 0).all()

@@ -4,7 +4,7 @@ import numpy as np
 import torch
 
 from tryon.learn.features import SkinPrior
-from tryon.sim.collision.geometry import area_vertex_normals
+from tryon.sim.geometry import area_vertex_normals
 from tryon.learn.losses import closest_split, deformation_gradients, uniform_laplacian
 from tryon.learn.network import GraphConv
 

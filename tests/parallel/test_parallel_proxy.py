@@ -9,7 +9,7 @@ from tryon.parallel.curvature import relative_curvature_error
 from tryon.parallel.proxy import cluster_decimate, coarse_obstacles, crop_obstacle, excess_outside, proxy_obstacle
 from tryon.parallel.recovery import oracle_recovery_errors
 from tryon.parallel.hierarchy import build_hierarchy
-from tryon.sim.collision import nearest_surface_points
+from tryon.sim.geometry import nearest_surface_points
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.obstacles import Motion, sphere
 from tryon.sim.scene import example_scene

@@ -69,7 +69,7 @@ def _summary(rows: list[dict], names: list[str]) -> dict:
 
 def _surface_distance_cm(a_v: np.ndarray, b_v: np.ndarray, faces: np.ndarray) -> float:
     """Mean distance from each drape's vertices to the other drape's surface (cm)."""
-    from tryon.sim.collision import nearest_surface_points
+    from tryon.sim.geometry import nearest_surface_points
 
     d1 = np.abs(nearest_surface_points(a_v, b_v, faces)[0])
     d2 = np.abs(nearest_surface_points(b_v, a_v, faces)[0])

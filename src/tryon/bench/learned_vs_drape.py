@@ -23,7 +23,7 @@ OUTSIDE_BODIES = (("female", 157, 50), ("female", 171, 77), ("male", 169, 64), (
 def mean_surface_distance_cm(a_v: np.ndarray, a_f: np.ndarray, b_v: np.ndarray, b_f: np.ndarray) -> float:
     """Symmetric mean distance (cm) between two triangle meshes: each one's vertices to the
     other's surface, the two means averaged."""
-    from tryon.sim.collision import nearest_surface_points
+    from tryon.sim.geometry import nearest_surface_points
 
     ab = np.abs(nearest_surface_points(np.asarray(a_v, np.float64), np.asarray(b_v, np.float64), b_f)[0])
     ba = np.abs(nearest_surface_points(np.asarray(b_v, np.float64), np.asarray(a_v, np.float64), a_f)[0])

@@ -152,7 +152,7 @@ def leg_spread(shape: BodyShape, rotations: np.ndarray, deg: float) -> np.ndarra
 
 def thigh_crossings(vertices: np.ndarray, faces: np.ndarray, part: np.ndarray) -> int:
     """Edge-triangle intersections between the left and the right leg."""
-    from tryon.sim.collision.intersections import edge_face_intersections
+    from tryon.sim.geometry import edge_face_intersections
 
     legs = [faces[(part[faces] == p).all(1)] for p in (3, 4)]
     edges = [np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])), axis=0) for f in legs]

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tryon.sim.collision.contacts import EE_OBSTACLE, EE_SELF, Contacts
+from tryon.sim.collision import EE_OBSTACLE, EE_SELF, Contacts
 
 NORMAL_MATCH = 1.0 - 1e-8  # |cos| between recomputed and reported normals
 WEIGHT_MATCH = 1e-6  # largest weight difference accepted as the same closest point

@@ -33,7 +33,7 @@ import torch
 
 from tryon.errors import SimulationError
 from tryon.fabric.base import Fabric
-from tryon.sim.collision.contacts import Contacts
+from tryon.sim.collision import Contacts
 from tryon.sim.integrator import ActiveContacts, ImplicitEulerSolver, StepOptions
 from tryon.sim.linear import HAVE_CHOLMOD
 from tryon.sim.model import ClothModel, ClothState, Control

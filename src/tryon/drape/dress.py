@@ -406,8 +406,8 @@ def placed_apart(x: np.ndarray, mesh: GarmentMesh, body: BodyPose, clearance: fl
     cannot undo a crossing it starts with. Returns positions, vertices pushed out of the
     skin and the sleeves' shift (m)."""
     from tryon.sim.collision import stitch_alias
-    from tryon.sim.collision.geometry import mesh_edges
-    from tryon.sim.collision.intersections import edge_face_intersections
+    from tryon.sim.geometry import mesh_edges
+    from tryon.sim.geometry import edge_face_intersections
 
     sleeves = [(mesh.panel_of_vertex == k, ArmTube(body, p.placement["limb"], clearance).A)
                for k, p in enumerate(mesh.pattern.panels) if p.placement.get("part") == "arm"]
@@ -453,7 +453,7 @@ def _unfold(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, panel: np.ndarr
     pushed to either side of a crease such as the armpit) smoothed away: the vertices of
     crossing edges and faces and their neighbours take their neighbours' mean, then are
     pushed out again. Returns the positions and how many crossings there were at first."""
-    from tryon.sim.collision.intersections import edge_face_intersections
+    from tryon.sim.geometry import edge_face_intersections
 
     def crossings(p: np.ndarray) -> tuple[np.ndarray, int]:
         hits = edge_face_intersections(p, edges, p, faces, True)
@@ -479,7 +479,7 @@ def _uncollapse(x: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, body: B
     """Triangles that pushing out of the skin collapsed (corners inside a fold of a very
     heavy body all moved to about the same point) spread again: their vertices and two
     rings of neighbours take their neighbours' mean, then are pushed out again."""
-    from tryon.sim.collision.geometry import mesh_edges
+    from tryon.sim.geometry import mesh_edges
 
     rest = _triangle_areas(corner_uv)
 
@@ -494,8 +494,8 @@ def _uncollapse(x: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray, body: B
 
 def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.ndarray, int]:
     """Points closer to the skin than `clearance` (or inside) moved out along the skin's
-    normal (`tryon.sim.collision.push_outside`), and how many moved."""
-    from tryon.sim.collision import push_outside
+    normal (`tryon.sim.geometry.push_outside`), and how many moved."""
+    from tryon.sim.geometry import push_outside
 
     out, moved, _ = push_outside(x, body.vertices, body.faces, clearance)
     return out, int(moved.sum())
@@ -715,8 +715,8 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     The dressed garment's self-intersections (edge through triangle) are counted in its
     stats: a drape cannot undo them. `mesh` is the pattern's triangulation when the
     caller has one (`transfer_mesh`: one topology for every size)."""
-    from tryon.sim import collision as col
-    from tryon.sim.collision.geometry import mesh_edges
+    from tryon.sim import geometry as geo
+    from tryon.sim.geometry import mesh_edges
 
     t0 = time.perf_counter()
     if mesh is None:
@@ -759,7 +759,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     owner = mesh.panel_of_vertex[mesh.faces[:, 0]]
     counts = np.bincount(group, minlength=len(pos))
     e = mesh_edges(faces)
-    n_self, _ = col.count_intersections(pos, faces, e, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
+    n_self, _ = geo.count_intersections(pos, faces, e, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
     stats.update({"vertices": int(len(pos)), "faces": int(len(faces)), "pushed_out_at_start": pushed, "unfolded_crossings": unfolded,
                   "self_intersections": int(n_self), "edge_length_m": edge_length, "dress_s": time.perf_counter() - t0})
     if n_self:

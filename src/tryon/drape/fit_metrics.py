@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tryon.sim import collision as col
+from tryon.sim import geometry as geo
 from tryon.sim.forces.bending import bending_forces
 from tryon.sim.forces.membrane import membrane_forces
 from tryon.sim.metrics import principal_stretch
@@ -44,7 +44,7 @@ def potential_energy(model, x: np.ndarray) -> dict[str, float]:
 
 
 def penetration(x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray) -> dict[str, float]:
-    d, _, _ = col.nearest_surface_points(x, body_vertices, body_faces)
+    d, _, _ = geo.nearest_surface_points(x, body_vertices, body_faces)
     inside = d < 0
     return {"penetration_pct": 100.0 * float(inside.mean()), "vertices_inside": int(inside.sum()),
             "deepest_penetration_mm": float(max(0.0, -d.min()) * 1000.0), "min_skin_distance_mm": float(d.min() * 1000.0),
@@ -59,7 +59,7 @@ def drape_metrics(result, solver, body_shift: np.ndarray | None = None) -> dict:
     strain = face_strain(model, x)
     pressure = contact_pressure(solver, x - (0.0 if body_shift is None else body_shift), float(result.frame_times[-1]))
     pen = penetration(x, result.body_vertices, result.body_faces)
-    n_self, n_body = col.count_intersections(x, model.faces.numpy(), model.edges.numpy(), result.body_vertices,
+    n_self, n_body = geo.count_intersections(x, model.faces.numpy(), model.edges.numpy(), result.body_vertices,
                                              result.body_faces, solver.model.obstacles.edges)
     area = model.rest_area.numpy()
     result.strain = strain

@@ -38,7 +38,7 @@ def garment_look(g, x: np.ndarray, fabric: str, pr=None) -> tuple[np.ndarray, np
         return x, g.faces, fabric_colors(fabric, g.uv), None
     from tryon.garment.prints import panel_xy
     from tryon.render.appearance import subdivide_faces
-    from tryon.sim.collision.geometry import vertex_normals
+    from tryon.sim.geometry import vertex_normals
 
     touched = pr.touched_faces(g)
     edge = float(np.linalg.norm(g.corner_uv[touched, 1] - g.corner_uv[touched, 0], axis=1).mean())

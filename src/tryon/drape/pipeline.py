@@ -212,7 +212,7 @@ class SkinBinding:
     along with a changing body while loose cloth is left to physics."""
 
     def __init__(self, x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, near: float = 0.02, far: float = 0.08):
-        from tryon.sim.collision import nearest_surface_locations
+        from tryon.sim.geometry import nearest_surface_locations
 
         dist, self.face, self.bary = nearest_surface_locations(x, body_vertices, body_faces)
         self.corners = body_faces[self.face]
@@ -237,8 +237,8 @@ def check_start(x: np.ndarray, faces: np.ndarray, body_vertices: np.ndarray, bod
     so it is refused here with the crossing vertices named. Coarse cloth edges through
     the skin (at the neck, say) are pushed out by the contact forces: their number is
     returned, for the report."""
-    from tryon.sim.collision.geometry import mesh_edges
-    from tryon.sim.collision.intersections import edge_face_intersections
+    from tryon.sim.geometry import mesh_edges
+    from tryon.sim.geometry import edge_face_intersections
 
     e = mesh_edges(faces)
     own = edge_face_intersections(x, e, x, faces, True)
@@ -316,7 +316,7 @@ def waistband_pin(garment: DressedGarment, frames: np.ndarray, times: np.ndarray
 def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPose, target: BodyPose,
                    progress: bool = True) -> tuple[np.ndarray, list, list, dict, object]:
     """Morph the body from `start` to `target` under the dressed garment, then settle."""
-    from tryon.sim.collision import push_outside
+    from tryon.sim.geometry import push_outside
     from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
     from tryon.sim.loop import FailSafeLimit, FlungRedo, FrameRecorder, RestDrift, StepLog, TimeLimit, TopSpeed, run
     from tryon.sim.model import Control

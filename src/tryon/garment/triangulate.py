@@ -19,7 +19,7 @@ from scipy.spatial import Delaunay
 
 from tryon.errors import MeshError
 from tryon.garment.pattern import Panel, Pattern
-from tryon.sim.collision.contacts import stitch_alias
+from tryon.sim.collision import stitch_alias
 from tryon.sim.origin import PatternMesh
 
 

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from tryon.errors import TryonError
 from tryon.kdsm.model import KdsmModel
 from tryon.kdsm.rig import KdsmRig
-from tryon.sim.collision import push_outside
+from tryon.sim.geometry import push_outside
 
 FPS = 30.0
 PUSH_GAP = 0.002     # m: predicted vertices nearer the skin than this (or inside) are moved out to it

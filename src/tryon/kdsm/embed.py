@@ -17,7 +17,7 @@ u = sum_k b_k X_k (the tet's rest-pose corners); skinning that tet to theta give
   parent); then d is smoothed over the cloth mesh
   (screened Poisson: (I + s L) d' = d), trading a little error for a smoother field.
 
-Parents are found with the project's BVH kernels (tryon.sim.collision.bvh): tet boxes
+Parents are found with the project's BVH kernels (tryon.sim.geometry.bvh): tet boxes
 against point boxes, then exact barycentric tests.
 """
 
@@ -58,7 +58,7 @@ def tet_barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
 
 def find_parents(points: np.ndarray, x: np.ndarray, tets: np.ndarray, tol: float = INSIDE_TOL, tree=None) -> Parents:
     """All tets (at vertex positions `x`) containing each point; `tree`: their BVH if built."""
-    from tryon.sim.collision.bvh import BVH, overlapping_pairs, point_boxes
+    from tryon.sim.geometry import BVH, overlapping_pairs, point_boxes
 
     points = np.ascontiguousarray(points, np.float64)
     x = np.ascontiguousarray(x, np.float64)

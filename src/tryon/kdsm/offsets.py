@@ -21,7 +21,7 @@ class SurfaceBinding:
 
     @classmethod
     def bind(cls, x: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray) -> "SurfaceBinding":
-        from tryon.sim.collision.intersections import nearest_surface_locations
+        from tryon.sim.geometry import nearest_surface_locations
 
         _, face, bary = nearest_surface_locations(x, body_vertices, body_faces)
         return cls(face, bary)
@@ -33,7 +33,7 @@ class SurfaceBinding:
         corners = body_faces[self.face]
         p = body_vertices[corners]                                   # [n,3,3]
         origin = np.einsum("nk,nkd->nd", self.bary, p)
-        from tryon.sim.collision.geometry import vertex_normals
+        from tryon.sim.geometry import vertex_normals
 
         vn = vertex_normals(body_vertices, body_faces)
         n = _unit(np.einsum("nk,nkd->nd", self.bary, vn[corners]))

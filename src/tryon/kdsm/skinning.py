@@ -47,7 +47,7 @@ def skin_volume(volume: TetVolume, body_vertices: np.ndarray, body_faces: np.nda
     """Skinning weights for every vertex of `volume` from the body's (module docstring).
     `body_vertices` are the body in the volume's rest pose, `weight_index`/`weight` [V,K]
     Anny's per-vertex bones and weights, `rest_transforms` [J,4,4] that pose's bone transforms."""
-    from tryon.sim.collision.intersections import nearest_surface_locations
+    from tryon.sim.geometry import nearest_surface_locations
 
     J = len(rest_transforms)
     _, face, bary = nearest_surface_locations(volume.vertices, body_vertices, body_faces)

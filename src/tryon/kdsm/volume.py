@@ -62,7 +62,7 @@ class TetVolume:
 def tet_tree(x: np.ndarray, tets: np.ndarray):
     """The BVH over tets at positions `x` (the collision kernels; build once for a volume
     that does not move)."""
-    from tryon.sim.collision.bvh import BVH, element_boxes
+    from tryon.sim.geometry import BVH, element_boxes
 
     return BVH.build(*element_boxes(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(tets), 1e-9))
 
@@ -76,7 +76,7 @@ def build_volume(body_vertices: np.ndarray, body_faces: np.ndarray, cell: float 
                  outer: float = 0.10, bounds: tuple[np.ndarray, np.ndarray] | None = None) -> TetVolume:
     """The shell of air [-inner, outer] around the body (module docstring), within the box
     `bounds` = (lo [3], hi [3]) if given (e.g. where a garment can reach)."""
-    from tryon.sim.collision.intersections import signed_obstacle_distance
+    from tryon.sim.geometry import signed_obstacle_distance
 
     body_vertices = np.asarray(body_vertices, np.float64)
     if not (0.002 <= cell <= 0.2 and 0.0 <= inner <= 0.2 and 0.0 < outer <= 0.5):

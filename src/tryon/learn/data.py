@@ -18,7 +18,7 @@ from tryon.body.anny_model import ShapeParams, body_model
 from tryon.dataset.drapes import shape_params
 from tryon.dataset.loading import DrapeDataset
 from tryon.learn.features import SkinPrior, a_posed_body, body_region
-from tryon.sim.collision.geometry import area_vertex_normals
+from tryon.sim.geometry import area_vertex_normals
 from tryon.learn.topology import build_hierarchy
 
 CANDIDATES = 8

@@ -48,7 +48,7 @@ class SkinPrior:
 
     @classmethod
     def bind(cls, x_ref: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray) -> "SkinPrior":
-        from tryon.sim.collision import nearest_surface_locations
+        from tryon.sim.geometry import nearest_surface_locations
 
         _, face, bary = nearest_surface_locations(x_ref, body_vertices, body_faces)
         corners = body_faces[face]

@@ -31,7 +31,7 @@ def refine_drape(x: np.ndarray, garment: DressedGarment, body: BodyPose, fabric:
     regions beyond the fabric (a print), which the prediction knows nothing of. `until`:
     an observer of the run (`tryon.sim.loop.Observer`) that may end it before the garment
     is at rest, e.g. once what a caller measures of it has settled."""
-    from tryon.sim.collision import count_intersections, push_outside
+    from tryon.sim.geometry import count_intersections, push_outside
     from tryon.sim.integrator import ImplicitEulerSolver
     from tryon.sim.loop import SettleTest, run
     from tryon.sim.model import ClothState, Control

@@ -35,7 +35,7 @@ from tryon.errors import SceneError
 from tryon.sim.mesh import ClothMesh
 from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
 from tryon.sim.loop import run
-from tryon.sim.collision.geometry import area_vertex_normals
+from tryon.sim.geometry import area_vertex_normals
 from tryon.sim.model import ClothModel, ClothState, PinGroup, SoftHandle
 from tryon.sim.obstacles import Obstacle
 from tryon.sim.origin import GridOrigin, PatternMesh, PatternOrigin
@@ -478,7 +478,7 @@ def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1
     that cut into a curved body. Vertices nearer the obstacles than a gap (from the contact
     thickness up) move out along the obstacle normal, with the smallest gap that leaves no
     cloth-obstacle intersection."""
-    from tryon.sim import collision as col
+    from tryon.sim import geometry as geo
 
     ob = model.obstacles.vertices_at(0.0)
     if len(ob) == 0:
@@ -489,12 +489,12 @@ def _clear_of_obstacles(mesh: ClothMesh, model: ClothModel, steps: tuple = (1, 1
     verdict = {"clear": False}
 
     def clear(x: np.ndarray) -> bool:
-        _, crossing = col.count_intersections(x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges,
+        _, crossing = geo.count_intersections(x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges,
                                               self_collision=False)
         verdict["clear"] = crossing == 0
         return verdict["clear"]
 
-    x, _, _ = col.push_outside(mesh.x.numpy(), ob, model.obstacles.faces, [k * h for k in steps], accept=clear)
+    x, _, _ = geo.push_outside(mesh.x.numpy(), ob, model.obstacles.faces, [k * h for k in steps], accept=clear)
     if verdict["clear"]:  # the verdict on the gap push_outside settled on
         return ClothMesh(torch.from_numpy(x), mesh.uv, mesh.faces, mesh.name, face_uv=mesh.face_uv)
     raise SceneError(f"the coarse garment still cuts into the obstacles {steps[-1] * h * 100:.1f} cm off them; "

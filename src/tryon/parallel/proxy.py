@@ -21,8 +21,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from tryon.errors import SceneError
-from tryon.sim.collision import nearest_surface_points
-from tryon.sim.collision.geometry import area_vertex_normals
+from tryon.sim.geometry import area_vertex_normals, nearest_surface_points
 from tryon.sim.obstacles import Motion, Obstacle
 
 MIN_FACES = 2000  # obstacles with fewer triangles are kept as they are

@@ -37,9 +37,9 @@ import torch
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.base import Fabric
 from tryon.parallel.hierarchy import Hierarchy
-from tryon.sim.collision import count_intersections, stitch_alias
-from tryon.sim.collision import push_outside as surface_push_outside
-from tryon.sim.collision.intersections import edge_face_intersections
+from tryon.sim.collision import stitch_alias
+from tryon.sim.geometry import count_intersections, edge_face_intersections
+from tryon.sim.geometry import push_outside as surface_push_outside
 from tryon.sim.integrator import ImplicitEulerSolver
 from tryon.sim.loop import advance
 from tryon.sim.model import ClothState
@@ -111,7 +111,7 @@ def push_outside(hier: Hierarchy, x: np.ndarray, t: float, gap: float | None = N
 
 
 def _pushed(hier: Hierarchy, x: np.ndarray, t: float, gaps: list[float], accept=None) -> tuple[np.ndarray, float]:
-    """`tryon.sim.collision.push_outside` against the fine level's obstacles at t, pins fixed."""
+    """`tryon.sim.geometry.push_outside` against the fine level's obstacles at t, pins fixed."""
     model = hier.fine.model
     ob = model.obstacles.vertices_at(t)
     if len(ob) == 0 or not model.collision.enabled:

@@ -208,7 +208,7 @@ def _write_size_files(fit_id: str, result, folder: Path, tag: str) -> dict:
     from tryon.io.mesh_io import write_glb
     from tryon.render.appearance import appearance
     from tryon.render.offscreen import save_png
-    from tryon.sim.collision import nearest_surface_points
+    from tryon.sim.geometry import nearest_surface_points
 
     folder.mkdir(parents=True, exist_ok=True)
     g, bv, bf = result.garment, result.body_vertices, result.body_faces

@@ -6,6 +6,8 @@ import numpy as np
 import torch
 
 from tryon.sim import collision as col
+
+from tryon.sim import geometry as geo
 from tryon.sim.model import ClothModel
 
 
@@ -35,11 +37,11 @@ def state_metrics(model: ClothModel, x: np.ndarray, t: float) -> dict:
     ob = model.obstacles.vertices_at(t)
     faces = model.faces.numpy()
     edges = model.edges.numpy()
-    n_self, n_obst = col.count_intersections(
+    n_self, n_obst = geo.count_intersections(
         x, faces, edges, ob, model.obstacles.faces, model.obstacles.edges, self_collision=model.collision.self_collision,
         alias=col.stitch_alias(model.stitches, len(x)),
     )
-    dist = col.min_obstacle_distance(x, ob, model.obstacles.faces) if len(ob) else float("inf")
+    dist = geo.min_obstacle_distance(x, ob, model.obstacles.faces) if len(ob) else float("inf")
     return {
         "max_strain": float(strain.max()),
         "mean_strain": float(strain.mean()),

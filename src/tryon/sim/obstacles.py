@@ -13,7 +13,7 @@ import numpy as np
 import trimesh
 
 from tryon.errors import SceneError
-from tryon.sim.collision.geometry import mesh_edges
+from tryon.sim.geometry.normals import mesh_edges
 
 
 @dataclass

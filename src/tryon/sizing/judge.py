@@ -74,7 +74,7 @@ def judge(size: str, garment, skin_distance: np.ndarray, strain: np.ndarray, pre
 
 def judge_size(size: str, result, strain_reliable: bool = True) -> dict:
     """`judge` of a drape (`tryon.drape.DrapeResult`, its strain and pressure measured)."""
-    from tryon.sim.collision import nearest_surface_points
+    from tryon.sim.geometry import nearest_surface_points
 
     d, _, _ = nearest_surface_points(result.x, result.body_vertices, result.body_faces)
     return dict(judge(size, result.garment, d, np.asarray(result.strain), np.asarray(result.pressure), strain_reliable),

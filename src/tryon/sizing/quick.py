@@ -102,7 +102,7 @@ class VerdictSettled:
         self.settled_at: int | None = None
 
     def __call__(self, rec) -> bool:
-        from tryon.sim.collision import nearest_surface_points
+        from tryon.sim.geometry import nearest_surface_points
 
         if rec.step >= self.limit:  # judged as it stands: a verdict near a threshold waits no longer
             return True
@@ -146,7 +146,7 @@ def refined_for_judging(request: DrapeRequest, person: BodyFit, model) -> DrapeR
 
 
 def predict_size(model, body: BodyPose, gender: str, size: str) -> PredictedSize:
-    from tryon.sim.collision import nearest_surface_points
+    from tryon.sim.geometry import nearest_surface_points
 
     garment = model.reference_garment(gender, size)
     x = model.predict_vertices(body.vertices, gender, size)

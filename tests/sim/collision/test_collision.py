@@ -9,8 +9,10 @@ import trimesh
 
 from tryon.errors import MeshError
 from tryon.sim import collision as col
-from tryon.sim.collision import ccd, primitives as prim, threads as collision_threads
-from tryon.sim.collision.bvh import BVH, overlapping_pairs
+from tryon.sim import geometry as geo
+from tryon.sim.collision import ccd
+from tryon.sim.geometry import primitives as prim, threads as geometry_threads
+from tryon.sim.geometry import BVH, overlapping_pairs
 
 H = 0.005
 
@@ -305,7 +307,7 @@ def test_proximity_matches_brute_force():
 
 
 def test_obstacle_normals_near_faces_equal_the_whole_obstacles_there():
-    from tryon.sim.collision.geometry import obstacle_normals, obstacle_normals_near
+    from tryon.sim.geometry.normals import obstacle_normals, obstacle_normals_near
 
     ob, ob_faces, ob_edges = ball([0.0, 0.0, 0.0], 0.3, subdivisions=3)
     ob = ob * [1.0, 0.7, 1.3]  # not a sphere: normals differ from the radial direction
@@ -368,7 +370,7 @@ def test_collision_queries_on_threads_equal_one_pass(monkeypatch):
         numba.set_num_threads(1)
         pairs1, prox1, imp1 = queries()
         numba.set_num_threads(2)
-        monkeypatch.setattr(collision_threads, "CHUNK", 64)  # many chunks even on this small scene
+        monkeypatch.setattr(geometry_threads, "CHUNK", 64)  # many chunks even on this small scene
         pairs2, prox2, imp2 = queries()
     finally:
         numba.set_num_threads(threads)
@@ -381,18 +383,18 @@ def test_collision_queries_on_threads_equal_one_pass(monkeypatch):
 def test_count_intersections_known_crossing_and_flat_sheet():
     x, f, e = sheet(10, 1.0, 0.0)
     gx, gf, ge = ground(z=-0.5)
-    assert col.count_intersections(x, f, e, gx, gf, ge) == (0, 0)
+    assert geo.count_intersections(x, f, e, gx, gf, ge) == (0, 0)
     # a single obstacle triangle piercing the sheet: two of its edges cross cloth faces
     tri = np.array([[0.01, 0.02, -0.3], [0.03, 0.01, 0.3], [0.2, 0.3, 0.3]])
-    n_self, n_ob = col.count_intersections(x, f, e, tri, np.array([[0, 1, 2]]), edges_of(np.array([[0, 1, 2]])))
+    n_self, n_ob = geo.count_intersections(x, f, e, tri, np.array([[0, 1, 2]]), edges_of(np.array([[0, 1, 2]])))
     assert n_self == 0 and n_ob >= 2
     # self: a second sheet tilted through the first
     y, g, _ = sheet(6, 0.4, 0.0)
     y = y[:, [0, 2, 1]] + [0.013, 0.017, 0.0]  # vertical sheet crossing z=0
     xx, ff, ee = merge((x, f, e), (y, g, None))
-    n_self, n_ob = col.count_intersections(xx, ff, ee, *no_obstacle())
+    n_self, n_ob = geo.count_intersections(xx, ff, ee, *no_obstacle())
     assert n_self > 0 and n_ob == 0
-    assert col.count_intersections(xx, ff, ee, *no_obstacle(), self_collision=False) == (0, 0)
+    assert geo.count_intersections(xx, ff, ee, *no_obstacle(), self_collision=False) == (0, 0)
 
 
 def test_obstacle_distances_on_a_sphere():
@@ -400,7 +402,7 @@ def test_obstacle_distances_on_a_sphere():
     ob, obf, _ = ball([0.1, -0.2, 0.3], 0.5, subdivisions=3)
     pts = rng.normal(size=(300, 3))
     pts = pts / np.linalg.norm(pts, axis=1, keepdims=True) * rng.uniform(0.1, 0.9, (300, 1)) + [0.1, -0.2, 0.3]
-    sd = col.signed_obstacle_distance(pts, ob, obf)
+    sd = geo.signed_obstacle_distance(pts, ob, obf)
     exact = np.linalg.norm(pts - [0.1, -0.2, 0.3], axis=1) - 0.5  # the mesh is inscribed: within ~1 %
     clear = np.abs(exact) > 0.02  # the inscribed mesh is within 1 cm of the sphere
     assert np.all(np.sign(sd[clear]) == np.sign(exact[clear]))
@@ -408,14 +410,14 @@ def test_obstacle_distances_on_a_sphere():
     # unsigned minimum against a brute-force minimum over all faces
     a, b, c = ob[obf[:, 0]], ob[obf[:, 1]], ob[obf[:, 2]]
     ref = min(prim.point_triangle_distance(tuple(p), tuple(a[k]), tuple(b[k]), tuple(c[k]))[0] for p in pts[:20] for k in range(len(obf)))
-    assert col.min_obstacle_distance(pts[:20], ob, obf) == pytest.approx(ref, abs=1e-12)
-    assert col.min_obstacle_distance(pts, *no_obstacle()[:2]) == float("inf")
+    assert geo.min_obstacle_distance(pts[:20], ob, obf) == pytest.approx(ref, abs=1e-12)
+    assert geo.min_obstacle_distance(pts, *no_obstacle()[:2]) == float("inf")
 
 
 # --------------------------------------------------------------------------- response
 def _check_resolved(x0, res, faces, edges, ob0, ob1, obf, obe, report, target):
     assert report.success
-    assert col.count_intersections(res, faces, edges, ob1, obf, obe) == (0, 0)
+    assert geo.count_intersections(res, faces, edges, ob1, obf, obe) == (0, 0)
     assert len(col.find_impacts(x0, res, faces, edges, ob0, ob1, obf, obe, H)) == 0
     assert report.max_violation < 1e-9
     gaps = report.constraints.gaps(res, ob1)
@@ -435,7 +437,7 @@ def test_cloth_falling_fast_through_a_plane_ends_above_it():
     assert res[:, 2].min() >= 0.1 * H - 1e-9
     assert rep.impacts_found > 0 and rep.zones >= 1
     safe = col.rigid_impact_zone_fallback(col.CollisionScene.of(f, e, m, gf, ge, H), x0, x1, gx, gx)
-    assert col.count_intersections(safe, f, e, gx, gf, ge) == (0, 0)
+    assert geo.count_intersections(safe, f, e, gx, gf, ge) == (0, 0)
     assert len(col.find_impacts(x0, safe, f, e, gx, gx, gf, ge, H)) == 0
 
 
@@ -455,7 +457,7 @@ def _squeezed_layers():
 
 def test_vertex_driven_through_another_layer_is_stopped_and_pins_hold():
     x0, x1, f, e, pinned = _squeezed_layers()
-    assert col.count_intersections(x1, f, e, *no_obstacle())[0] > 0
+    assert geo.count_intersections(x1, f, e, *no_obstacle())[0] > 0
     masses = torch.full((len(x0),), 2e-4, dtype=torch.float64)
     res, rep = col.resolve_collisions(col.CollisionScene.of(f, e, masses, thickness=H, pinned_mask=pinned), torch.from_numpy(x0), x1)
     _check_resolved(x0, res, f, e, *no_obstacle()[:1], *no_obstacle(), rep, 0.1 * H)
@@ -471,7 +473,7 @@ def test_vertex_driven_through_another_layer_is_stopped_and_pins_hold():
     slack = c.gaps(res) - rep.target_gap
     assert np.abs(lam * slack).max() < 1e-9 * max(lam.max(), 1.0)
     safe = col.rigid_impact_zone_fallback(col.CollisionScene.of(f, e, masses, thickness=H, pinned_mask=pinned), x0, x1)
-    assert col.count_intersections(safe, f, e, *no_obstacle()) == (0, 0)
+    assert geo.count_intersections(safe, f, e, *no_obstacle()) == (0, 0)
     assert len(col.find_impacts(x0, safe, f, e, *no_obstacle()[:1], *no_obstacle(), H)) == 0
     assert np.array_equal(safe[pinned], x1[pinned])
 
@@ -483,10 +485,10 @@ def test_moving_obstacle_pushes_cloth():
     m = np.full(len(x0), 1e-3)
     res, rep = col.resolve_collisions(col.CollisionScene.of(f, e, m, obf, obe, H), x0, x0.copy(), ob0, ob1)
     _check_resolved(x0, res, f, e, ob0, ob1, obf, obe, rep, 0.1 * H)
-    assert col.signed_obstacle_distance(res, ob1, obf).min() > 0
+    assert geo.signed_obstacle_distance(res, ob1, obf).min() > 0
     assert res[:, 2].max() > 0.03
     safe = col.rigid_impact_zone_fallback(col.CollisionScene.of(f, e, m, obf, obe, H), x0, x0.copy(), ob0, ob1)
-    assert col.count_intersections(safe, f, e, ob1, obf, obe) == (0, 0)
+    assert geo.count_intersections(safe, f, e, ob1, obf, obe) == (0, 0)
     assert len(col.find_impacts(x0, safe, f, e, ob0, ob1, obf, obe, H)) == 0
 
 
@@ -538,6 +540,6 @@ def test_stitched_vertices_are_one_vertex_to_contact_handling():
     x1[16:, 2] -= 0.002
     hit = col.find_impacts(x, x1, faces, edges, None, None, None, None, H, alias=alias)
     assert len(hit) > 0 and not np.isin(alias[hit.idx], alias[stitches[:, 0]]).all(axis=1).any()
-    n_plain, _ = col.count_intersections(x1, faces, edges, *no_obstacle())
-    n_joined, _ = col.count_intersections(x1, faces, edges, *no_obstacle(), alias=alias)
+    n_plain, _ = geo.count_intersections(x1, faces, edges, *no_obstacle())
+    n_joined, _ = geo.count_intersections(x1, faces, edges, *no_obstacle(), alias=alias)
     assert 0 < n_joined < n_plain

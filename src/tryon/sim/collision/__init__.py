@@ -10,9 +10,10 @@ Per time step the simulator calls
 
 All contacts share one representation (`Contacts`): four point ids, weights summing to
 zero and a unit normal, gap d = sum_k w_k n . p_k. Kernels are numba-compiled (cache=True).
+The geometry it is built on (BVHs, normals, intersection counts, nearest points,
+`push_outside`) is `tryon.sim.geometry`.
 """
 
-from tryon.sim.collision.bvh import BVH, overlapping_pairs
 from tryon.sim.collision.ccd import find_impacts
 from tryon.sim.collision.contacts import (
     EE_OBSTACLE,
@@ -25,20 +26,11 @@ from tryon.sim.collision.contacts import (
     stitch_alias,
 )
 from tryon.sim.collision.impact_zones import CollisionReport, resolve_collisions, rigid_impact_zone_fallback
-from tryon.sim.collision.intersections import (
-    count_intersections,
-    min_obstacle_distance,
-    nearest_surface_locations,
-    nearest_surface_points,
-    push_outside,
-    signed_obstacle_distance,
-)
 from tryon.sim.collision.proximity import find_proximities
 from tryon.sim.collision.qp import QPResult, solve_projection
 from tryon.sim.collision.scene import CollisionScene
 
 __all__ = [
-    "BVH",
     "CollisionReport",
     "CollisionScene",
     "Contacts",
@@ -48,18 +40,11 @@ __all__ = [
     "KIND_NAMES",
     "VF_OBSTACLE",
     "VF_SELF",
-    "count_intersections",
     "find_impacts",
     "find_proximities",
-    "min_obstacle_distance",
-    "nearest_surface_locations",
-    "nearest_surface_points",
-    "push_outside",
-    "overlapping_pairs",
     "QPResult",
     "solve_projection",
     "stitch_alias",
     "resolve_collisions",
     "rigid_impact_zone_fallback",
-    "signed_obstacle_distance",
 ]

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from tryon.sim.collision.bvh import _overlap, overlapping_pairs
+from tryon.sim.geometry.bvh import _overlap, overlapping_pairs
 from tryon.errors import MeshError
 from tryon.sim.collision.contacts import (
     check_thickness,
@@ -25,10 +25,9 @@ from tryon.sim.collision.contacts import (
     VF_OBSTACLE,
     VF_SELF,
     Contacts,
-    as_points,
-    check_finite,
 )
-from tryon.sim.collision.primitives import (
+from tryon.sim.geometry.inputs import as_points, check_finite, prepare_inputs
+from tryon.sim.geometry.primitives import (
     add,
     closest_points_segments,
     coplanarity_cubic,
@@ -45,7 +44,7 @@ from tryon.sim.collision.primitives import (
     sub,
     combine3,
 )
-from tryon.sim.collision.proximity import PER_PAIR, _in_face, _share, mesh_boxes, prepare_inputs, run_driver, store
+from tryon.sim.collision.proximity import PER_PAIR, _in_face, _share, mesh_boxes, run_driver, store
 from tryon.sim.collision.topology import face_tree, mesh_topology
 
 # distance (m) at a coplanarity time below which two primitives count as touching

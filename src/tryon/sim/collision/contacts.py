@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from tryon.errors import MeshError
+from tryon.sim.geometry.inputs import as_points
 
 VF_SELF = 0  # cloth vertex - cloth face
 EE_SELF = 1  # cloth edge - cloth edge
@@ -122,40 +123,6 @@ def stitch_alias(stitches: Any, n_vertices: int) -> np.ndarray | None:
 
     graph = sp.coo_matrix((np.ones(len(st)), (st[:, 0], st[:, 1])), shape=(n_vertices, n_vertices))
     return connected_components(graph, directed=False)[1].astype(np.int64)
-
-
-# --------------------------------------------------------------------------- input checks
-def as_points(a: Any, name: str) -> np.ndarray:
-    """Float64 C-contiguous [N,3] numpy array from numpy or torch input."""
-    if hasattr(a, "detach"):
-        a = a.detach().cpu().numpy()
-    arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64))
-    if arr.size == 0:
-        return arr.reshape(0, 3)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise MeshError(f"{name}: expected positions of shape [N,3], got {list(arr.shape)}")
-    return arr
-
-
-def as_index(a: Any, width: int, name: str, n_vertices: int) -> np.ndarray:
-    """Int64 C-contiguous [K,width] index array, checked against n_vertices."""
-    if a is None:
-        return np.zeros((0, width), np.int64)
-    if hasattr(a, "detach"):
-        a = a.detach().cpu().numpy()
-    arr = np.ascontiguousarray(np.asarray(a, dtype=np.int64))
-    if arr.size == 0:
-        return arr.reshape(0, width)
-    if arr.ndim != 2 or arr.shape[1] != width:
-        raise MeshError(f"{name}: expected an index array of shape [K,{width}], got {list(arr.shape)}")
-    if arr.min() < 0 or arr.max() >= n_vertices:
-        raise MeshError(f"{name}: vertex ids must lie in [0, {n_vertices}), got [{arr.min()}, {arr.max()}]; check the mesh")
-    return arr
-
-
-def check_finite(a: np.ndarray, name: str) -> None:
-    if not np.all(np.isfinite(a)):
-        raise MeshError(f"{name}: positions contain NaN or infinity; fix the input (or retry the step with a smaller dt)")
 
 
 def check_thickness(thickness: Any) -> float:

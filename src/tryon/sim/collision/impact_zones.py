@@ -29,8 +29,8 @@ from scipy.sparse.csgraph import connected_components
 
 from tryon.errors import MeshError
 from tryon.sim.collision.ccd import find_impacts
-from tryon.sim.collision.contacts import Contacts, as_points
-from tryon.sim.collision.proximity import prepare_inputs
+from tryon.sim.collision.contacts import Contacts
+from tryon.sim.geometry.inputs import as_points, prepare_inputs
 from tryon.sim.collision.qp import solve_projection
 from tryon.sim.collision.scene import CollisionScene
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from tryon.sim.collision.bvh import (
+from tryon.sim.geometry.bvh import (
     _overlap,
     element_boxes,
     overlapping_pairs,
@@ -37,15 +37,13 @@ from tryon.sim.collision.contacts import (
     VF_OBSTACLE,
     VF_SELF,
     Contacts,
-    as_index,
-    as_points,
-    check_finite,
     check_thickness,
 )
-from tryon.sim.collision.geometry import obstacle_normals_near
-from tryon.sim.collision.threads import chunked
+from tryon.sim.geometry.inputs import check_finite, prepare_inputs
+from tryon.sim.geometry.normals import obstacle_normals_near
+from tryon.sim.geometry.threads import chunked
 from tryon.sim.collision.topology import face_tree, mesh_topology
-from tryon.sim.collision.primitives import (
+from tryon.sim.geometry.primitives import (
     INSIDE_TOL,
     closest_points_lines,
     cross,
@@ -309,17 +307,6 @@ def mesh_boxes(x: np.ndarray, faces: np.ndarray, edges: np.ndarray, margin: floa
     if x1 is None:
         return (*point_boxes(x, margin), *element_boxes(x, edges, 0.5 * margin), *element_boxes(x, faces, 0.0))
     return (*swept_point_boxes(x, x1, margin), *swept_boxes(x, x1, edges, 0.5 * margin), *swept_boxes(x, x1, faces, 0.0))
-
-
-def prepare_inputs(x, faces, edges, ob, ob_faces, ob_edges):
-    """Validated numpy arrays (positions float64 [.,3], ids int64) for the collision API."""
-    x = as_points(x, "cloth positions")
-    faces = as_index(faces, 3, "cloth faces", len(x))
-    edges = as_index(edges, 2, "cloth edges", len(x))
-    ob = as_points(ob if ob is not None else np.zeros((0, 3)), "obstacle positions")
-    ob_faces = as_index(ob_faces, 3, "obstacle faces", max(len(ob), 1)) if len(ob) else np.zeros((0, 3), np.int64)
-    ob_edges = as_index(ob_edges, 2, "obstacle edges", max(len(ob), 1)) if len(ob) else np.zeros((0, 2), np.int64)
-    return x, faces, edges, ob, ob_faces, ob_edges
 
 
 def find_proximities(

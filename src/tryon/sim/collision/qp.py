@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from tryon.sim.collision.primitives import jit
+from tryon.sim.geometry.primitives import jit
 
 try:  # CHOLMOD when scikit-sparse is installed, else SciPy's SuperLU
     from sksparse.cholmod import analyze as _cholmod_analyze

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tryon.sim.collision.bvh import LEAF_SIZE, BVH, build_tree, refit_tree
-from tryon.sim.collision.geometry import face_edge_ids
-from tryon.sim.collision.primitives import jit
+from tryon.sim.geometry.bvh import LEAF_SIZE, BVH, build_tree, refit_tree
+from tryon.sim.geometry.normals import face_edge_ids
+from tryon.sim.geometry.primitives import jit
 
 REBUILD_EVERY = 16  # uses of a cached BVH topology before it is rebuilt
 _CACHE_SIZE = 16

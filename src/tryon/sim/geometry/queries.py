@@ -9,11 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from tryon.sim.collision.bvh import BVH, _box_dist2, element_boxes, overlapping_pairs
-from tryon.sim.collision.contacts import as_index, as_points, check_finite
-from tryon.sim.collision.geometry import cached_face_edge_ids, cached_mesh_edges, face_normals, obstacle_normals_near
-from tryon.sim.collision.primitives import jit, point_triangle_distance, row, segment_triangle_intersect
-from tryon.sim.collision.proximity import prepare_inputs
+from tryon.sim.geometry.bvh import BVH, _box_dist2, element_boxes, overlapping_pairs
+from tryon.sim.geometry.normals import cached_face_edge_ids, cached_mesh_edges, face_normals, obstacle_normals_near
+from tryon.sim.geometry.primitives import jit, point_triangle_distance, row, segment_triangle_intersect
+from tryon.sim.geometry.inputs import as_index, as_points, check_finite, prepare_inputs
 
 # plane-side tolerance (m) of the discrete test: an edge must cross the face plane by more
 # than this, so coplanar neighbours of a flat sheet never count as intersecting

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tryon.sim.collision.primitives import jit
-from tryon.sim.collision.threads import chunked
+from tryon.sim.geometry.primitives import jit
+from tryon.sim.geometry.threads import chunked
 
 LEAF_SIZE = 4
 

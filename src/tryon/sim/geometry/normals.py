@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from tryon.sim.collision.primitives import cross, dot, jit, norm, row, scale, sub
+from tryon.sim.geometry.primitives import cross, dot, jit, norm, row, scale, sub
 
 
 def face_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
