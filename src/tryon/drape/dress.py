@@ -795,5 +795,8 @@ def dress_cached(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length: 
             log.warning("ignoring unreadable dressing cache %s (%s)", path, exc)
     g = dress_pattern(pattern, body, fabric, edge_length, progress=progress, mesh=mesh)
     g.save(path)
+    # the garment as the cache holds it (the pattern's points rounded to 1 um), so that a
+    # drape from a fresh dressing equals the drape from the cached one bit for bit
+    g = DressedGarment.load(path)
     g.stats["cached"] = False
     return g

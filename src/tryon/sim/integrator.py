@@ -28,7 +28,7 @@ import torch
 from tryon.errors import SimulationError
 from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
-from tryon.sim.collision.topology import export_tree_cache, import_tree_cache
+from tryon.sim.collision.topology import clear_tree_cache, export_tree_cache, import_tree_cache
 from tryon.sim.collision.contacts import Contacts
 from tryon.sim.collision.scene import CollisionScene
 from tryon.sim.forces.bending import bending_forces
@@ -100,6 +100,7 @@ class ImplicitEulerSolver:
                                             model.collision.thickness, self.pinned_mask, model.collision.self_collision,
                                             stitches=self._stitches)
         self.last_collision: col.CollisionReport | None = None  # the latest response's report, for diagnoses
+        clear_tree_cache()  # a run does not depend on the collision queries made before it in this process
 
     # ------------------------------------------------------------------ public API
     def step(self, state: ClothState, dt: float, control: Control | None = None) -> tuple[ClothState, StepStats]:

@@ -103,6 +103,14 @@ def face_tree(faces: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> BVH:
 _TREE_PARTS = ("order", "child", "first", "count")
 
 
+def clear_tree_cache() -> None:
+    """Forget the cached BVH topologies: the next query of every mesh builds its tree anew.
+    The tree a query traverses decides the order of its candidate pairs, and with it the
+    last bits of a step's result, so a simulation starts from an empty cache (a new
+    solver) to give the same result whatever ran before it in the process."""
+    _TREES.clear()
+
+
 def export_tree_cache() -> dict[str, np.ndarray]:
     """The cached BVH topologies and their use counters as plain arrays (for checkpoints):
     the tree a query traverses decides the order of its candidate pairs, so a resumed run
