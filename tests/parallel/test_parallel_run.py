@@ -232,13 +232,22 @@ def test_the_bench_serial_baseline_runs_on_one_workers_threads():
 
     from tryon.parallel.executors import worker_threads
 
+    outer = torch.get_num_threads(), numba.get_num_threads()
+    # two threads before, whatever the test process runs on (one per test worker), so that
+    # the restore is seen (numba: as many as it was started with allow)
+    torch.set_num_threads(2)
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     before = torch.get_num_threads(), numba.get_num_threads()
-    with worker_threads():
-        assert (torch.get_num_threads(), numba.get_num_threads()) == (1, 1)
-    assert (torch.get_num_threads(), numba.get_num_threads()) == before
-    with pytest.raises(RuntimeError), worker_threads():
-        raise RuntimeError("a failing baseline")
-    assert (torch.get_num_threads(), numba.get_num_threads()) == before
+    try:
+        with worker_threads():
+            assert (torch.get_num_threads(), numba.get_num_threads()) == (1, 1)
+        assert (torch.get_num_threads(), numba.get_num_threads()) == before
+        with pytest.raises(RuntimeError), worker_threads():
+            raise RuntimeError("a failing baseline")
+        assert (torch.get_num_threads(), numba.get_num_threads()) == before
+    finally:
+        torch.set_num_threads(outer[0])
+        numba.set_num_threads(outer[1])
 
 
 def test_bench_twin_starts_a_micrometre_away_and_measures_its_spread(local_run):

@@ -56,6 +56,24 @@ def test_a_redo_that_is_flung_again_raises_with_the_explanation():
             redo_flung=FlungRedo(5.0, explain=lambda before, redone, speeds: f"still flung at t={before.t:.2f}"))
 
 
+def test_a_step_that_leaves_no_number_is_redone_and_a_redo_that_does_raises():
+    class NotANumber(Scripted):
+        def __init__(self, nan):
+            super().__init__()
+            self.nan = nan
+
+        def step(self, state, dt, control=None):
+            new, stats = super().step(state, dt, control)
+            if len(self.calls) - 1 in self.nan:
+                new.v[2, 1] = float("nan")
+            return new, stats
+
+    out = run(NotANumber(nan={0}), _start(), 0.01, until=1, redo_flung=FlungRedo(5.0))
+    assert np.isfinite(out.state.v.numpy()).all()
+    with pytest.raises(SimulationError, match="even after redoing"):
+        run(NotANumber(nan={0, 1, 2}), _start(), 0.01, until=1, redo_flung=FlungRedo(5.0))
+
+
 def test_fail_safe_limits_count_frozen_streaks_and_totals():
     with pytest.raises(SimulationError, match="froze the cloth 3 steps in a row"):
         run(Scripted(failsafe={1, 2, 3}), _start(), 0.01, until=10, observers=[FailSafeLimit(streak=3)])
@@ -108,10 +126,43 @@ def test_end_time_step_length_before_step_and_frames():
     assert frames.times[:3] == [0.0, pytest.approx(0.02), pytest.approx(0.05)]
 
 
-def test_time_limit_is_checked_between_steps():
+class _Clock:
+    """A wall clock that only the scripted solver moves: `seconds` per step."""
+
+    def __init__(self, seconds: float):
+        self.now, self.seconds = 0.0, seconds
+
+    def perf_counter(self) -> float:
+        return self.now
+
+
+def _timed_solver(monkeypatch, seconds_per_step: float) -> Scripted:
+    clock = _Clock(seconds_per_step)
+    monkeypatch.setattr("tryon.sim.loop.time", clock)
+    solver = Scripted()
+    step = solver.step
+
+    def timed(state, dt, control=None):
+        clock.now += clock.seconds
+        return step(state, dt, control)
+
+    solver.step = timed
+    return solver
+
+
+def test_time_limit_is_checked_between_steps(monkeypatch):
+    limit = TimeLimit(0.1, explain=lambda rec: f"out of time after {rec.step} steps")
     with pytest.raises(SimulationError, match="out of time after 2 steps"):
-        run(Scripted(sleep=0.06), _start(), 0.01, until=50,
-            time_limit=TimeLimit(0.1, explain=lambda rec: f"out of time after {rec.step} steps"))
+        run(_timed_solver(monkeypatch, 0.06), _start(), 0.01, until=50, time_limit=limit)
+    # the last step counts too, whether the run ends on a step count or on a simulated time
+    with pytest.raises(SimulationError, match="out of time after 2 steps"):
+        run(_timed_solver(monkeypatch, 0.06), _start(), 0.01, until=2, time_limit=limit)
+    with pytest.raises(SimulationError, match="out of time after 2 steps"):
+        run(_timed_solver(monkeypatch, 0.06), _start(), 0.01, until=None, until_time=0.02, time_limit=limit)
+    # an observer that ends the run (the cloth at rest) ends it in time
+    out = run(_timed_solver(monkeypatch, 0.06), _start(), 0.01, until=50, time_limit=limit,
+              observers=[lambda rec: rec.step == 2])
+    assert out.step == 2
 
 
 def test_advance_takes_one_step_from_any_state():

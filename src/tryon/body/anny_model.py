@@ -156,11 +156,28 @@ def anny_cache_dir() -> Path:
 
 
 @contextlib.contextmanager
-def cache_lock(cache: Path):
-    """An exclusive lock on the Anny cache folder for the block (other processes wait)."""
-    cache.mkdir(parents=True, exist_ok=True)
-    with open(cache / ".tryon-build.lock", "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
+def cache_lock(cache: Path, wait_s: float = 900.0):
+    """An exclusive lock on the Anny cache folder for the block: other processes wait for
+    a build under way, at most `wait_s` seconds. A cache folder this process cannot write
+    (a prebuilt, read-only one) is only read, so it needs no lock."""
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        fh = open(cache / ".tryon-build.lock", "a")
+    except OSError:
+        yield
+        return
+    with fh:
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    raise TryonError(f"another process has held the Anny cache lock {cache / '.tryon-build.lock'} "
+                                     f"for over {wait_s:.0f} s (building or loading the cache): stop it, or give "
+                                     "this one its own ANNY_CACHE_DIR")
+                time.sleep(0.2)
         try:
             yield
         finally:

@@ -563,10 +563,11 @@ class DressedGarment:
 
     @classmethod
     def load(cls, path: str | Path) -> "DressedGarment":
-        d = np.load(path, allow_pickle=False)
-        pattern = json.loads(str(d["pattern"]))
-        return cls(d["vertices"], d["faces"], d["uv"], d["corner_uv"], d["face_panel"],
-                   Pattern.from_dict(pattern) if pattern is not None else None, d["seam_vertices"], json.loads(str(d["stats"])))
+        with np.load(path, allow_pickle=False) as d:
+            pattern = json.loads(str(d["pattern"]))
+            return cls(d["vertices"], d["faces"], d["uv"], d["corner_uv"], d["face_panel"],
+                       Pattern.from_dict(pattern) if pattern is not None else None, d["seam_vertices"],
+                       json.loads(str(d["stats"])))
 
 
 SEW_STALL_STEPS = 20  # a seam gap that closed less than 2 % in this many steps has stalled

@@ -33,8 +33,11 @@ def cuda_driver_present() -> bool:
 
 @contextlib.contextmanager
 def stderr_descriptor_silenced() -> Iterator[None]:
-    """File descriptor 2 points at /dev/null inside the block (C code's fprintf included)."""
-    sys.stderr.flush()
+    """File descriptor 2 points at /dev/null inside the block (C code's fprintf included).
+    The descriptor is the process's: what other threads write to it meanwhile is lost too,
+    so keep the block to the one call that needs it."""
+    if sys.stderr is not None:  # None under pythonw and some detached services
+        sys.stderr.flush()
     saved = os.dup(2)
     try:
         with open(os.devnull, "w") as null:

@@ -28,7 +28,6 @@ import torch
 from tryon.errors import SimulationError
 from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
-from tryon.sim.collision.topology import clear_tree_cache, export_tree_cache, import_tree_cache
 from tryon.sim.collision.contacts import Contacts
 from tryon.sim.collision.scene import CollisionScene
 from tryon.sim.forces.bending import bending_forces
@@ -100,7 +99,6 @@ class ImplicitEulerSolver:
                                             model.collision.thickness, self.pinned_mask, model.collision.self_collision,
                                             stitches=self._stitches)
         self.last_collision: col.CollisionReport | None = None  # the latest response's report, for diagnoses
-        clear_tree_cache()  # a run does not depend on the collision queries made before it in this process
 
     # ------------------------------------------------------------------ public API
     def step(self, state: ClothState, dt: float, control: Control | None = None) -> tuple[ClothState, StepStats]:
@@ -124,7 +122,7 @@ class ImplicitEulerSolver:
         solver's warm start and the cached BVH topologies of the collision queries.
         Saved with a checkpoint, restored by `restore_arrays`, a resumed run repeats the
         uninterrupted one bit for bit."""
-        arrays = export_tree_cache()
+        arrays = self.collisions.trees.export()
         if self._last_dv is not None:
             arrays["solver_last_dv"] = self._last_dv
         return arrays
@@ -134,7 +132,7 @@ class ImplicitEulerSolver:
         last = arrays.get("solver_last_dv")
         if last is not None and (np.shape(last) != (self.model.num_vertices, 3) or not np.all(np.isfinite(last))):
             raise ValueError("the solver's warm start does not fit the cloth")
-        import_tree_cache(arrays)
+        self.collisions.trees.load(arrays)
         self._last_dv = None if last is None else np.array(last, dtype=np.float64)
 
     # ------------------------------------------------------------------ internals

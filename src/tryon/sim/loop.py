@@ -48,7 +48,7 @@ BeforeStep = Callable[[int, ClothState], ClothState]  # (step about to run, stat
 @dataclass
 class StepRecord:
     """One finished step: its number (counted from the run's step 0), the new state, the
-    solver's statistics, its wall time, its length and the state it started from. A step
+    solver's statistics, its wall time (the `before_step` move included), its length and the state it started from. A step
     redone because it flung the cloth (`FlungRedo`) has several solver steps (`attempts`,
     merged in `stats`) and says what happened in `flung`."""
 
@@ -82,8 +82,9 @@ def _fastest(state: ClothState) -> np.ndarray:
 class FlungRedo:
     """A step that leaves a vertex faster than `limit` m/s has been flung by a failed
     solve or collision response (slow motion such as draping never moves cloth that fast):
-    it is redone from its start without its velocities, in `halves` steps of dt / halves.
-    A redo that is flung too raises `SimulationError` with `explain(before, redone, speeds)`."""
+    it is redone from its start without its velocities, in `halves` steps of dt / halves
+    (so is a step that left a velocity not a number). A redo that is flung too raises
+    `SimulationError` with `explain(before, redone, speeds)`."""
 
     limit: float
     halves: int = 2
@@ -92,7 +93,7 @@ class FlungRedo:
     def redo(self, solver: ImplicitEulerSolver, before: ClothState, stepped: ClothState, dt: float, k: int,
              control: ControlFn | Control | None, attempts: list[StepStats]) -> tuple[ClothState, dict | None]:
         speeds = _fastest(stepped)
-        if not len(speeds) or speeds.max() <= self.limit:
+        if not len(speeds) or speeds.max() <= self.limit:  # NaN speeds compare False: redone
             return stepped, None
         flung = {"t": round(before.t, 4), "speed_m_s": round(float(speeds.max()), 2),
                  "vertices": np.argsort(-speeds)[:5].tolist()}
@@ -101,7 +102,7 @@ class FlungRedo:
             state, stats = solver.step(state, dt / self.halves, _inputs(control, k, state.t))
             attempts.append(stats)
         speeds = _fastest(state)
-        if speeds.max() > self.limit:
+        if not speeds.max() <= self.limit:  # a NaN speed is not a recovery
             why = self.explain(before, state, speeds) if self.explain else (
                 f"at t={before.t:.2f}s the cloth moves at {speeds.max():.1f} m/s even after redoing the step in "
                 f"{self.halves} parts from rest (at most {self.limit} m/s is plausible)")
@@ -179,7 +180,7 @@ def run(solver: ImplicitEulerSolver, state: ClothState, dt: float | StepSizeFn, 
     """Advance from step `start` to step `until` (None: no step bound), or until the
     simulated time reaches `until_time`, or until an observer returns True, and return the
     outcome. Observers see every step in order; one may raise to end the run with an error.
-    `time_limit` is checked after them. `progress` names a progress bar (None: no bar) of
+    `time_limit` is checked after them, on every step but one an observer ended the run on. `progress` names a progress bar (None: no bar) of
     `total` steps (default `until`). A resumed run passes the `outcome` it had reached so
     that the totals count the whole run."""
     outcome = outcome or RunOutcome(state, start)
@@ -196,10 +197,12 @@ def run(solver: ImplicitEulerSolver, state: ClothState, dt: float | StepSizeFn, 
             bar.update(1)
             outcome.wall_s = time.perf_counter() - wall0
             stop = [bool(obs(rec)) for obs in observers]  # every observer sees every step
-            if any(stop) or (until_time is not None and rec.state.t >= until_time - 1e-9):
+            if any(stop):  # an observer's end (the cloth at rest) is in time
                 break
             if time_limit is not None and time.perf_counter() - wall0 > time_limit.seconds:
-                raise time_limit.error(rec)
+                raise time_limit.error(rec)  # the last step too, however the run ends
+            if until_time is not None and rec.state.t >= until_time - 1e-9:
+                break
     finally:
         bar.close()
         outcome.wall_s = time.perf_counter() - wall0

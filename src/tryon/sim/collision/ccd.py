@@ -45,7 +45,7 @@ from tryon.sim.geometry.primitives import (
     combine3,
 )
 from tryon.sim.collision.proximity import PER_PAIR, _in_face, _share, mesh_boxes, run_driver, store
-from tryon.sim.collision.topology import face_tree, mesh_topology
+from tryon.sim.collision.topology import TreeCache, face_tree, mesh_topology
 
 # distance (m) at a coplanarity time below which two primitives count as touching
 CCD_EPS = 1e-6
@@ -233,6 +233,7 @@ def find_impacts(
     self_collision: bool = True,
     eps: float = CCD_EPS,
     alias: np.ndarray | None = None,
+    trees: TreeCache | None = None,
 ) -> Contacts:
     """Vertex-face and edge-edge impacts while cloth moves linearly x0 -> x1 and the
     obstacle ob0 -> ob1: for every primitive pair whose swept boxes overlap, the earliest
@@ -242,7 +243,8 @@ def find_impacts(
 
     `thickness` is the contact thickness h of the scene; CCD itself looks for touching
     (distance < eps, default 1e-6 m, at most h / 10), not for proximity. Vertices sharing
-    an `alias` (stitched ones) count as one vertex."""
+    an `alias` (stitched ones) count as one vertex. `trees`: the BVH topology cache to use (a
+    simulation's own; None: the one shared by queries outside simulations)."""
     x0, faces, edges, ob0, ob_faces, ob_edges = prepare_inputs(x0, faces, edges, ob0, ob_faces, ob_edges)
     x1 = as_points(x1, "cloth end positions")
     ob1 = as_points(ob1 if ob1 is not None else np.zeros((0, 3)), "obstacle end positions")
@@ -256,7 +258,7 @@ def find_impacts(
     eps = min(float(eps), 0.1 * check_thickness(thickness))
     topo = mesh_topology(faces, edges, len(x0))
     bx = mesh_boxes(x0, faces, edges, eps, x1)
-    tris = face_tree(faces, bx[4] - 0.5 * eps, bx[5] + 0.5 * eps)
+    tris = face_tree(faces, bx[4] - 0.5 * eps, bx[5] + 0.5 * eps, trees)
     parts = []
     if self_collision:
         pairs = overlapping_pairs(tris)
@@ -265,7 +267,7 @@ def find_impacts(
     if len(ob0) and len(ob_faces):
         ob_topo = mesh_topology(ob_faces, ob_edges, len(ob0))
         ob_bx = mesh_boxes(ob0, ob_faces, ob_edges, eps, ob1)
-        ob_tris = face_tree(ob_faces, ob_bx[4] - 0.5 * eps, ob_bx[5] + 0.5 * eps)
+        ob_tris = face_tree(ob_faces, ob_bx[4] - 0.5 * eps, ob_bx[5] + 0.5 * eps, trees)
         pairs = overlapping_pairs(tris, ob_tris)
         parts.append(run_driver(
             obstacle_impacts, pairs, x0, x1, faces, edges, topo.own_vertices, topo.own_edges, topo.n_own_vertices, topo.n_own_edges, bx, ob0, ob1, ob_faces,

@@ -142,7 +142,7 @@ def resolve_collisions(
     report.success = False
     limit = max(2000, 2 * len(x0)) if max_impacts is None else max_impacts
     for it in range(max_iterations + 1):
-        impacts = find_impacts(x0, x, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias)
+        impacts = find_impacts(x0, x, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias, trees=scene.trees)
         if len(impacts) == 0:
             report.success = True
             break
@@ -300,7 +300,7 @@ def rigid_impact_zone_fallback(scene: CollisionScene, x0: Any, x1: Any, ob0: Any
     x = x1.copy()
     prev = None
     for _ in range(max_iterations):
-        impacts = find_impacts(x0, x, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias)
+        impacts = find_impacts(x0, x, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias, trees=scene.trees)
         if len(impacts) == 0:
             return x
         graph, inv = _coupling_graph(impacts.idx, n, ob_comp, n_comp)
@@ -315,10 +315,10 @@ def rigid_impact_zone_fallback(scene: CollisionScene, x0: Any, x1: Any, ob0: Any
     # last resort: the whole cloth as one zone riding with everything kinematic
     involved[:] = True
     x_all = _rigid_zone_positions(x0, x1, masses, pinned, np.zeros(size, np.int64), involved, ob0, ob1, ob_comp, n)
-    left = len(find_impacts(x0, x_all, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias))
+    left = len(find_impacts(x0, x_all, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias, trees=scene.trees))
     if left == 0:
         return x_all
     frozen = x0.copy()
     frozen[pinned] = x1[pinned]
-    left_frozen = len(find_impacts(x0, frozen, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias))
+    left_frozen = len(find_impacts(x0, frozen, faces, edges, ob0, ob1, ob_faces, ob_edges, thickness, self_collision, alias=scene.alias, trees=scene.trees))
     return frozen if left_frozen < left else x_all

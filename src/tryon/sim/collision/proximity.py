@@ -42,7 +42,7 @@ from tryon.sim.collision.contacts import (
 from tryon.sim.geometry.inputs import check_finite, prepare_inputs
 from tryon.sim.geometry.normals import obstacle_normals_near
 from tryon.sim.geometry.threads import chunked
-from tryon.sim.collision.topology import face_tree, mesh_topology
+from tryon.sim.collision.topology import TreeCache, face_tree, mesh_topology
 from tryon.sim.geometry.primitives import (
     INSIDE_TOL,
     closest_points_lines,
@@ -319,19 +319,22 @@ def find_proximities(
     thickness: float,
     self_collision: bool = True,
     alias: np.ndarray | None = None,
+    trees: TreeCache | None = None,
 ) -> Contacts:
     """All vertex-face and edge-edge pairs closer than `thickness` (criteria and normal
     orientation in the module docstring), found by traversing BVHs over face boxes
     inflated by thickness / 2, each face testing the vertices and edges it owns. Kinds:
     VF_SELF, EE_SELF (when self_collision), VF_OBSTACLE, FV_OBSTACLE, EE_OBSTACLE; d is the
-    gap at x. Vertices sharing an `alias` (stitched ones) count as one vertex."""
+    gap at x. Vertices sharing an `alias` (stitched ones) count as one vertex. `trees`: the
+    BVH topology cache to use (a simulation's own; None: the one shared by queries outside
+    simulations)."""
     x, faces, edges, ob, ob_faces, ob_edges = prepare_inputs(x, faces, edges, ob, ob_faces, ob_edges)
     check_finite(x, "cloth positions")
     check_finite(ob, "obstacle positions")
     h = check_thickness(thickness)
     topo = mesh_topology(faces, edges, len(x))
     bx = mesh_boxes(x, faces, edges, h)
-    tris = face_tree(faces, bx[4] - 0.5 * h, bx[5] + 0.5 * h)
+    tris = face_tree(faces, bx[4] - 0.5 * h, bx[5] + 0.5 * h, trees)
     parts = []
     if self_collision:
         pairs = overlapping_pairs(tris)
@@ -340,7 +343,7 @@ def find_proximities(
     if len(ob) and len(ob_faces):
         ob_topo = mesh_topology(ob_faces, ob_edges, len(ob))
         ob_bx = mesh_boxes(ob, ob_faces, ob_edges, h)
-        ob_tris = face_tree(ob_faces, ob_bx[4] - 0.5 * h, ob_bx[5] + 0.5 * h)
+        ob_tris = face_tree(ob_faces, ob_bx[4] - 0.5 * h, ob_bx[5] + 0.5 * h, trees)
         pairs = overlapping_pairs(tris, ob_tris)
         ob_vn, ob_en = obstacle_normals_near(ob, ob_faces, ob_edges, pairs[:, 1])  # only where the pairs look
         parts.append(run_driver(

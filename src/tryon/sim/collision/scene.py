@@ -4,12 +4,13 @@ their positions, travelling as one object through the Python side of `tryon.sim.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from tryon.sim.collision.contacts import check_thickness, stitch_alias
+from tryon.sim.collision.topology import TreeCache
 
 
 @dataclass(frozen=True)
@@ -17,7 +18,9 @@ class CollisionScene:
     """Cloth topology (faces [F,3], edges [E,2]), vertex masses [N] (kg) and pinned mask
     [N], the obstacles' merged topology (ob_faces, ob_edges), the contact thickness (m) and
     whether the cloth collides with itself; `alias`: one id per cloth vertex, shared by
-    stitched vertices, which contact handling treats as one vertex (None: no stitches)."""
+    stitched vertices, which contact handling treats as one vertex (None: no stitches);
+    `trees`: the scene's own BVH topology cache (see `TreeCache`): a scene, and so a
+    simulation, gives the same contacts whatever other scenes query in the process."""
 
     faces: np.ndarray
     edges: np.ndarray
@@ -28,6 +31,7 @@ class CollisionScene:
     thickness: float
     self_collision: bool = True
     alias: np.ndarray | None = None
+    trees: TreeCache = field(default_factory=TreeCache, compare=False, repr=False)
 
     @classmethod
     def of(cls, faces: Any, edges: Any, masses: Any, ob_faces: Any = None, ob_edges: Any = None,
@@ -54,4 +58,4 @@ class CollisionScene:
 
         return find_proximities(x, self.faces, self.edges, ob, self.ob_faces, self.ob_edges, self.thickness,
                                 self_collision=self.self_collision if self_collision is None else self_collision,
-                                alias=self.alias)
+                                alias=self.alias, trees=self.trees)

@@ -64,7 +64,6 @@ def _valid_first(a: np.ndarray) -> np.ndarray:
 
 
 _TOPOLOGIES: dict = {}
-_TREES: dict = {}
 
 
 def _remember(cache: dict, key, value) -> None:
@@ -83,63 +82,73 @@ def mesh_topology(faces: np.ndarray, edges: np.ndarray, n_vertices: int) -> Mesh
     return topo
 
 
-def face_tree(faces: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> BVH:
-    """A BVH over the face boxes (lo, hi): the cached topology of this face list refitted,
-    or a fresh build every REBUILD_EVERY uses."""
-    if len(faces) == 0:
-        return BVH.build(lo, hi)
-    key = (faces.shape, int(fingerprint(faces)))
-    entry = _TREES.get(key)
-    if entry is None or entry[4] >= REBUILD_EVERY:
-        order, child, first, count = build_tree(lo, hi, LEAF_SIZE)
-        entry = [order, child, first, count, 0]
-        _remember(_TREES, key, entry)
-    entry[4] += 1
-    order, child, first, count = entry[:4]
-    nlo, nhi = refit_tree(order, child, first, count, lo, hi)
-    return BVH(order, child, first, count, nlo, nhi, lo, hi)
-
-
 _TREE_PARTS = ("order", "child", "first", "count")
 
 
-def clear_tree_cache() -> None:
-    """Forget the cached BVH topologies: the next query of every mesh builds its tree anew.
-    The tree a query traverses decides the order of its candidate pairs, and with it the
-    last bits of a step's result, so a simulation starts from an empty cache (a new
-    solver) to give the same result whatever ran before it in the process."""
-    _TREES.clear()
+class TreeCache:
+    """BVH topologies over face lists, each refitted to new boxes on use and rebuilt every
+    REBUILD_EVERY uses. The tree a query traverses decides the order of its candidate pairs,
+    and with it the last bits of a step's result, so each simulation owns one cache (its
+    `CollisionScene` holds it): its result does not depend on what else ran, or runs, in
+    the process, and a checkpoint carries the cache to repeat the uninterrupted run."""
+
+    def __init__(self) -> None:
+        self._trees: dict = {}
+
+    def __len__(self) -> int:
+        return len(self._trees)
+
+    def tree(self, faces: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> BVH:
+        """A BVH over the face boxes (lo, hi): this face list's cached topology refitted, or
+        a fresh build every REBUILD_EVERY uses."""
+        if len(faces) == 0:
+            return BVH.build(lo, hi)
+        key = (faces.shape, int(fingerprint(faces)))
+        entry = self._trees.get(key)
+        if entry is None or entry[4] >= REBUILD_EVERY:
+            order, child, first, count = build_tree(lo, hi, LEAF_SIZE)
+            entry = [order, child, first, count, 0]
+            _remember(self._trees, key, entry)
+        entry[4] += 1
+        order, child, first, count = entry[:4]
+        nlo, nhi = refit_tree(order, child, first, count, lo, hi)
+        return BVH(order, child, first, count, nlo, nhi, lo, hi)
+
+    def export(self) -> dict[str, np.ndarray]:
+        """The cached topologies and their use counters as plain arrays (for checkpoints)."""
+        out: dict[str, np.ndarray] = {}
+        for i, (key, entry) in enumerate(self._trees.items()):
+            shape, fp = key
+            out[f"bvh{i}_key"] = np.array([*shape, entry[4]], dtype=np.int64)
+            out[f"bvh{i}_fingerprint"] = np.array([fp], dtype=np.uint64)
+            for name, a in zip(_TREE_PARTS, entry[:4]):
+                out[f"bvh{i}_{name}"] = a
+        return out
+
+    def load(self, arrays: dict[str, np.ndarray]) -> None:
+        """Replace the cached topologies by ones saved with `export` (checked first: the
+        compiled traversal does not check bounds)."""
+        trees = {}
+        i = 0
+        while f"bvh{i}_key" in arrays:
+            key = np.asarray(arrays[f"bvh{i}_key"]).reshape(-1)
+            fp = np.asarray(arrays[f"bvh{i}_fingerprint"]).reshape(-1)
+            if key.dtype.kind not in "iu" or len(key) != 3 or fp.dtype != np.uint64 or len(fp) != 1:
+                raise ValueError(f"cached BVH {i}: malformed key")
+            parts = [np.ascontiguousarray(arrays[f"bvh{i}_{name}"]) for name in _TREE_PARTS]
+            _check_tree(int(key[0]), *parts)
+            trees[(tuple(int(k) for k in key[:-1]), int(fp[0]))] = [*parts, int(key[-1])]
+            i += 1
+        self._trees = trees
 
 
-def export_tree_cache() -> dict[str, np.ndarray]:
-    """The cached BVH topologies and their use counters as plain arrays (for checkpoints):
-    the tree a query traverses decides the order of its candidate pairs, so a resumed run
-    must continue with the same trees to repeat the uninterrupted run exactly."""
-    out: dict[str, np.ndarray] = {}
-    for i, (key, entry) in enumerate(_TREES.items()):
-        shape, fp = key
-        out[f"bvh{i}_key"] = np.array([*shape, entry[4]], dtype=np.int64)
-        out[f"bvh{i}_fingerprint"] = np.array([fp], dtype=np.uint64)
-        for name, a in zip(_TREE_PARTS, entry[:4]):
-            out[f"bvh{i}_{name}"] = a
-    return out
+_SHARED_TREES = TreeCache()  # for queries made outside a simulation
 
 
-def import_tree_cache(arrays: dict[str, np.ndarray]) -> None:
-    """Replace the BVH topology cache by one saved with `export_tree_cache`."""
-    trees = {}
-    i = 0
-    while f"bvh{i}_key" in arrays:
-        key = np.asarray(arrays[f"bvh{i}_key"]).reshape(-1)
-        fp = np.asarray(arrays[f"bvh{i}_fingerprint"]).reshape(-1)
-        if key.dtype.kind not in "iu" or len(key) != 3 or fp.dtype != np.uint64 or len(fp) != 1:
-            raise ValueError(f"cached BVH {i}: malformed key")
-        parts = [np.ascontiguousarray(arrays[f"bvh{i}_{name}"]) for name in _TREE_PARTS]
-        _check_tree(int(key[0]), *parts)
-        trees[(tuple(int(k) for k in key[:-1]), int(fp[0]))] = [*parts, int(key[-1])]
-        i += 1
-    _TREES.clear()
-    _TREES.update(trees)
+def face_tree(faces: np.ndarray, lo: np.ndarray, hi: np.ndarray, cache: TreeCache | None = None) -> BVH:
+    """A BVH over the face boxes (lo, hi) from `cache` (a simulation's own), or from the
+    cache shared by queries made outside a simulation."""
+    return (_SHARED_TREES if cache is None else cache).tree(faces, lo, hi)
 
 
 def _check_tree(n_faces: int, order: np.ndarray, child: np.ndarray, first: np.ndarray, count: np.ndarray) -> None:
