@@ -203,3 +203,22 @@ def test_a_pose_parts_thighs_that_cross_and_leaves_others_standing_as_they_are()
     slim = fit_body(Measurements(height_cm=165, weight_kg=68, gender="female")).shape
     assert clear_thighs(slim, arm_pose(slim, 45.0))[1] == 0.0
     assert np.array_equal(named_pose(slim, "a"), arm_pose(slim, 45.0))
+
+
+def test_thighs_stand_as_far_apart_as_a_trousers_inner_legs_need():
+    from tryon.body.pose import arm_pose, body_parts, clear_thighs, gap_between_thighs, leg_spread
+
+    heavy = fit_body(Measurements(height_cm=158, weight_kg=92, gender="female")).shape
+    part = body_parts(heavy.bone_labels, heavy.weight_index, heavy.weight)
+    _, just_clear = clear_thighs(heavy, arm_pose(heavy, 45.0))
+    _, apart = clear_thighs(heavy, arm_pose(heavy, 45.0), gap=0.02)
+    assert apart > just_clear
+    gaps = {d: gap_between_thighs(posed_body(heavy, r).vertices, part)
+            for d, r in ((just_clear, named_pose(heavy, "a")), (apart, named_pose(heavy, "a", thigh_gap=0.02)))}
+    assert gaps[just_clear] < 0.02 <= gaps[apart]
+    # one degree less would not do
+    narrower = posed_body(heavy, leg_spread(heavy, arm_pose(heavy, 45.0), apart - 1.0)).vertices
+    assert gap_between_thighs(narrower, part) < 0.02
+    # a slim body's thighs leave that room standing as they are
+    slim = fit_body(Measurements(height_cm=165, weight_kg=60, gender="female")).shape
+    assert clear_thighs(slim, arm_pose(slim, 45.0), gap=0.02)[1] == 0.0

@@ -405,20 +405,27 @@ def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
     with pytest.raises(TryonError, match=r"size S is too small.*bust / chest.*try size X?X?L.*--allow-tight"):
         drape(req, progress=False)
     # the drape matrix drapes such a body made to measure and records why
-    from tryon.sizing.chart import MADE_TO_MEASURE, chart_size
+    from tryon.sizing.chart import MADE_TO_MEASURE, chart_size, too_small_for
 
     size, why = chart_size("trousers", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
     assert size == MADE_TO_MEASURE and "hip" in why
     assert chart_size("tshirt", {"chest_cm": 120, "waist_cm": 108, "hip_cm": 127}, "female") == ("XXL", None)
+    # a chest beyond the chart's largest size (men's XXL: up to 129 cm) is made to measure
+    size, why = chart_size("tshirt", {"chest_cm": 143.8, "waist_cm": 139.7, "hip_cm": 139.8}, "male")
+    assert size == MADE_TO_MEASURE and "beyond the size chart" in why and "up to 129 cm" in why
     # a T-shirt whose chest would stretch over this man but whose hem would not go over his hip
-    size, why = chart_size("tshirt", {"chest_cm": 145, "waist_cm": 146, "hip_cm": 148}, "male")
+    size, why = chart_size("tshirt", {"chest_cm": 128, "waist_cm": 140, "hip_cm": 148}, "male")
     assert size == MADE_TO_MEASURE and "hip is 148 cm" in why and "chest with ease" in why
-    # a skirt whose hip would stretch over this body but whose waistband would not close
-    size, why = chart_size("skirt", {"chest_cm": 150, "waist_cm": 132, "hip_cm": 147}, "female")
-    assert size == MADE_TO_MEASURE and "waist is 132 cm" in why
-    # a belly fuller than the skirt between its waist and hip, though band and seat close
-    # (the ANSUR II prior's 175 cm, 138 kg woman); without the navel girth it is XXL
-    full = {"chest_cm": 128, "waist_cm": 122, "hip_cm": 140.6}
+    # a skirt whose hip would stretch over this body but whose waistband would not close:
+    # the next size up; a waist beyond the chart's largest (women's XXL: 115 cm) made to measure
+    body = {"chest_cm": 96, "waist_cm": 95, "hip_cm": 100}
+    assert chart_size("skirt", body, "female") == ("L", None)
+    assert "waist is 95 cm" in too_small_for("skirt", "M", "female", body)
+    size, why = chart_size("skirt", {"chest_cm": 130, "waist_cm": 132, "hip_cm": 138}, "female")
+    assert size == MADE_TO_MEASURE and "waist, 132 cm, is beyond the size chart" in why
+    # a belly fuller than the skirt between its waist and hip, though band and seat close;
+    # without the navel girth it is XXL
+    full = {"chest_cm": 128, "waist_cm": 114, "hip_cm": 138.5}
     assert chart_size("skirt", full, "female") == ("XXL", None)
     size, why = chart_size("skirt", {**full, "waist_navel_cm": 137}, "female")
     assert size == MADE_TO_MEASURE and "belly at the navel" in why and "137 cm" in why
@@ -455,3 +462,30 @@ def test_relaxation_stops_on_drift_but_not_while_the_garment_is_still_fast():
     fast = [1.0] * 5 + [0.97] * 30
     assert _relax_verdicts(fast) is None  # still spending strain at ~1 m/s: keep relaxing
     assert _relax_verdicts([0.5, 0.2, 0.1, 0.05, 0.01]) == 5  # at rest
+
+
+def test_welded_trousers_between_full_thighs_leave_the_skin_without_crossing_themselves():
+    """Made-to-measure trousers for a 175 cm, 138 kg woman, thighs 2 cm apart: pushed out
+    of the skin to the placement clearance, the two inner legs pass through each other
+    below the crotch; pushed out only `TIGHT_CLEARANCE`, they do not."""
+    from tryon.body.fit import fit_body
+    from tryon.body.measure import made_to_measure_measurements
+    from tryon.drape.dress import TIGHT_CLEARANCE, _welded_clear_of_skin, clear_of_skin
+
+    person = fit_body(Measurements(height_cm=175, weight_kg=137.8, gender="female"))
+    m = made_to_measure_measurements(person.shape)
+    body = posed_body(person.shape, "a", m["crotch_height"], pipeline.thigh_gap_for("trousers"))
+    mesh = triangulate_pattern(draft("trousers", m, size="made-to-measure", meta={"gender": "female"}), 0.012)
+    x = place_pattern(mesh, body, 0.012)
+    pos, faces, _, _ = merge_stitched(mesh, x)
+    edges = geo.mesh_edges(faces)
+
+    def crossings(p):
+        return len(geo.edge_face_intersections(p, edges, p, faces, True))
+
+    assert crossings(pos) == 0
+    assert crossings(clear_of_skin(pos, body, 0.012)[0]) > 10
+    out, pushed, used = _welded_clear_of_skin(pos, faces, body, 0.012)
+    assert used == TIGHT_CLEARANCE and pushed > 0 and crossings(out) == 0
+    d, _, _ = geo.nearest_surface_points(out, body.vertices, body.faces)
+    assert d.min() > 0.0  # out of the skin

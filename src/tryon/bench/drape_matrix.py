@@ -23,6 +23,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write, claim_work_dir
 from tryon.io.json_safe import dumps_json
 from tryon.sizing.chart import chart_size, fitted_girths
@@ -65,8 +66,14 @@ def body_girths(body: Body) -> dict:
     return fitted_girths(fit_body(Measurements(height_cm=body.height_cm, weight_kg=body.weight_kg, gender=body.gender)))
 
 
-def cells(quick: bool) -> list[tuple[Body, str, str]]:
+def cells(quick: bool, keys: list[str] | None = None) -> list[tuple[Body, str, str]]:
+    """The matrix's (body, garment, fabric) cells; `keys`: only these bodies' rows."""
     bodies = QUICK_BODIES if quick else BODIES
+    if keys:
+        unknown = sorted(set(keys) - {b.key for b in bodies})
+        if unknown:
+            raise TryonError(f"no matrix body {', '.join(unknown)}; the bodies are {', '.join(b.key for b in bodies)}")
+        bodies = tuple(b for b in bodies if b.key in keys)
     fabrics = FABRICS[1:] if quick else FABRICS
     return [(b, g, f) for b in bodies for g in GARMENTS for f in fabrics if not (g == "dress" and b.gender == "male")]
 
@@ -99,9 +106,10 @@ def passed(rec: dict) -> bool:
 
 
 def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: float | None = None,
-                     timeout_s: float = 360.0) -> list[dict]:
-    """Drape every cell (resuming finished ones), print the table, write JSON and the
-    picture grid (`<json stem>.png`); cell folders in `<json stem>-cells/`."""
+                     timeout_s: float = 360.0, bodies: list[str] | None = None) -> list[dict]:
+    """Drape every cell (resuming finished ones; `bodies`: only those rows), print the
+    table, write JSON and the picture grid (`<json stem>.png`); cell folders in
+    `<json stem>-cells/`."""
     json_path = Path(json_path)
     edge = edge_length or (0.03 if quick else 0.012)
     cell_root = claim_work_dir(json_path.with_name(json_path.stem + "-cells"), resume=True)
@@ -109,7 +117,7 @@ def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: fl
     records = []
     print(f"{'garment':10s} {'size':4s} {'fabric':17s} {'body':14s} {'wall s':>7s} {'steps':>5s} {'settled':>7s} "
           f"{'pen %':>6s} {'strain':>6s}  result")
-    for body, garment, fabric in cells(quick):
+    for body, garment, fabric in cells(quick, bodies):
         if body.key not in girths:
             girths[body.key] = body_girths(body)
         size, why = chart_size(garment, girths[body.key], body.gender)

@@ -160,30 +160,45 @@ def thigh_crossings(vertices: np.ndarray, faces: np.ndarray, part: np.ndarray) -
             + len(edge_face_intersections(vertices, edges[1], vertices, legs[0], False)))
 
 
-def clear_thighs(shape: BodyShape, rotations: np.ndarray) -> tuple[np.ndarray, float]:
+def gap_between_thighs(vertices: np.ndarray, part: np.ndarray) -> float:
+    """The smallest distance (m) between a left-leg and a right-leg vertex more than 2 cm
+    below the crotch (the torso's lowest vertex): how much room the thighs leave for a
+    trouser's inner legs. Higher up, both legs meet the torso at the perineum."""
+    from scipy.spatial import cKDTree
+
+    below = vertices[part == 0, 2].min() - 0.02
+    left, right = (vertices[(part == p) & (vertices[:, 2] < below)] for p in (3, 4))
+    if not len(left) or not len(right):
+        return float("inf")
+    return float(cKDTree(right).query(left)[0].min())
+
+
+def clear_thighs(shape: BodyShape, rotations: np.ndarray, gap: float = 0.0) -> tuple[np.ndarray, float]:
     """The narrowest leg spread (whole degrees, up to MAX_STANCE_DEG) at which the thighs
-    of `rotations` no longer pass through each other: (rotations, degrees per leg).
-    Thighs that do not cross are left as they are."""
+    of `rotations` no longer pass through each other and, when `gap` > 0, stand at least
+    `gap` metres apart (`gap_between_thighs`): (rotations, degrees per leg). Thighs
+    already clear are left as they are."""
     part = body_parts(shape.bone_labels, shape.weight_index, shape.weight)
     rest = shape.vertices.detach()
     deg = 0.0
     while True:
         R = leg_spread(shape, rotations, deg) if deg else np.asarray(rotations)
         v = skin(rest, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy()
-        if deg >= MAX_STANCE_DEG or thigh_crossings(v, shape.faces, part) == 0:
+        clear = thigh_crossings(v, shape.faces, part) == 0 and (gap <= 0 or gap_between_thighs(v, part) >= gap)
+        if clear or deg >= MAX_STANCE_DEG:
             return R, deg
         deg += STANCE_STEP_DEG
 
 
-def named_pose(shape: BodyShape, name: str) -> np.ndarray:
+def named_pose(shape: BodyShape, name: str, thigh_gap: float = 0.0) -> np.ndarray:
     """'a' (arms 45 degrees), 't' (arms 90 degrees) or 'rest' (Anny's rest pose); 'a' and
-    't' stand with the thighs clear of each other."""
+    't' stand with the thighs clear of each other (at least `thigh_gap` apart)."""
     key = name.lower().replace("-pose", "").replace("pose", "") or name
     if key not in POSES:
         raise TryonError(f"unknown pose {name!r}; use one of a-pose, t-pose, rest")
     if POSES[key] is None:
         return identity_pose(shape)
-    return clear_thighs(shape, arm_pose(shape, POSES[key]))[0]
+    return clear_thighs(shape, arm_pose(shape, POSES[key]), thigh_gap)[0]
 
 
 def transfer_weights(points: np.ndarray, shape: BodyShape, vertices: np.ndarray | None = None, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -237,10 +252,12 @@ def body_parts(bone_labels: list[str], weight_index: np.ndarray, weight: np.ndar
     return score.argmax(1)
 
 
-def posed_body(shape: BodyShape, pose: str | np.ndarray = "a", crotch_height: float | None = None) -> BodyPose:
-    """The body in a named pose ('a', 't', 'rest') or given rotations, with bone heads
-    (plus a 'crotch' landmark when its height is given) moved along."""
-    R = named_pose(shape, pose) if isinstance(pose, str) else pose
+def posed_body(shape: BodyShape, pose: str | np.ndarray = "a", crotch_height: float | None = None,
+               thigh_gap: float = 0.0) -> BodyPose:
+    """The body in a named pose ('a', 't', 'rest'; thighs at least `thigh_gap` apart) or
+    given rotations, with bone heads (plus a 'crotch' landmark when its height is given)
+    moved along."""
+    R = named_pose(shape, pose, thigh_gap) if isinstance(pose, str) else pose
     G = bone_transforms(shape, R)
     v = skin(shape.vertices.detach(), shape.weight_index, shape.weight, G).numpy()
     heads = dict(zip(shape.bone_labels, posed_heads(shape, G)))

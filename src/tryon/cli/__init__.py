@@ -515,7 +515,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "drape" and args.matrix:
         from tryon.bench.drape_matrix import run_drape_matrix
 
-        run_drape_matrix(args.json, quick=args.quick)
+        run_drape_matrix(args.json, quick=args.quick, bodies=args.bodies)
         return 0
     if args.what == "drape":
         from tryon.bench.drape import run_drape_bench
@@ -744,6 +744,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "bodies (a minute or two each; pictures next to --json)")
     b.add_argument("--matrix", action="store_true",
                    help="drape: every garment on twelve bodies in two fabrics (resumable; picture grid next to --json)")
+    b.add_argument("--bodies", nargs="+", metavar="KEY",
+                   help="drape --matrix: only these bodies' rows, by key (f175-bmi45, m200-bmi45, ...)")
     b.set_defaults(func=_cmd_bench)
 
     from tryon.cli.dataset import add_commands as add_dataset_commands

@@ -55,6 +55,13 @@ STATE_FILE = "drape_state.npz"
 # now sew clean at 45; at 60 a long sleeve's first sewing step crawled for minutes).
 DRESS_ARM_ANGLES = (POSES["a"], 50.0)
 PRINTABLE = ("tshirt", "longsleeve", "dress")  # garments with a front panel
+# Trousers pass two layers of cloth between the thighs, each kept a contact thickness from
+# the skin and from the other: thighs closer than 2 cm stand further apart for them
+# (`clear_thighs`). A 175 cm, 138 kg woman's thighs just cleared each other at 4 degrees
+# (4 mm apart): her made-to-measure trousers were dressed through themselves at the
+# crotch and their drape ran out of time. At 12 mm its collision response failed from the
+# first steps; at 2 cm (7 degrees) it settles. Skirts and dresses hang outside the thighs.
+TROUSER_THIGH_GAP = 0.02
 DRAPE_SUBSTEP_DEPTH = 1
 # Draping a garment is slow motion: gravity over a couple of seconds and a body changing
 # shape at well under 1 m/s. A vertex faster than this has been flung by a failed solve or
@@ -367,9 +374,11 @@ def simulate_drape(request: DrapeRequest, garment: DressedGarment, start: BodyPo
         if kind == "streak":
             return (f"draping {garment.name} makes no progress: at t={rec.state.t:.2f}s the collision response has "
                     f"failed {count} steps in a row and the rigid fail-safe froze the cloth; {stall}")
+        hint = (f"is size {request.size} far too small for this body?" if request.size else
+                "does the body leave the garment room, between the thighs or under the arms?")
         return (f"draping {garment.name} makes no progress: by t={rec.state.t:.2f}s the collision response has failed "
-                f"in {count} steps and needed the rigid fail-safe (the body presses the cloth into itself; is size "
-                f"{request.size} far too small for this body?); {stall}")
+                f"in {count} steps and needed the rigid fail-safe (the body presses the cloth into itself; {hint}); "
+                f"{stall}")
 
     def counts() -> dict:
         return {"steps": log.steps, "retried_steps": log.retried, "failsafe_steps": log.failsafe,
@@ -418,19 +427,25 @@ def check_size_fits(request: DrapeRequest, person: BodyFit) -> None:
         raise TryonError(f"{why}; {hint} (or --allow-tight to drape it anyway and see the strain)")
 
 
+def thigh_gap_for(garment: str) -> float:
+    """How far apart (m) the thighs stand for a garment (`TROUSER_THIGH_GAP`)."""
+    return TROUSER_THIGH_GAP if garment == "trousers" else 0.0
+
+
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
-                       progress: bool = True) -> tuple[BodyPose, DressedGarment]:
-    """The fit model's pose and the garment dressed on it: in the A-pose, or, for a garment
-    with sleeves, with the arms further out when the garment sewn there crosses itself
-    (`DRESS_ARM_ANGLES`)."""
+                       progress: bool = True, thigh_gap: float = 0.0) -> tuple[BodyPose, DressedGarment]:
+    """The fit model's pose and the garment dressed on it: in the A-pose (thighs at least
+    `thigh_gap` apart), or, for a garment with sleeves, with the arms further out when the
+    garment sewn there crosses itself (`DRESS_ARM_ANGLES`)."""
     sleeved = any(p.placement.get("part") == "arm" for p in pattern.panels)
-    for angle in DRESS_ARM_ANGLES if sleeved else DRESS_ARM_ANGLES[:1]:
-        start = posed_body(shape, clear_thighs(shape, arm_pose(shape, angle))[0], crotch_height)
+    angles = DRESS_ARM_ANGLES if sleeved else DRESS_ARM_ANGLES[:1]
+    for angle in angles:
+        start = posed_body(shape, clear_thighs(shape, arm_pose(shape, angle), thigh_gap)[0], crotch_height)
         garment = dress_cached(pattern, start, fabric, edge_length, progress=progress)
         garment.stats["dress_arm_angle_deg"] = angle
         if garment.stats.get("self_intersections", 0) == 0:
             break
-        if angle != DRESS_ARM_ANGLES[-1]:
+        if angle != angles[-1]:
             log.warning("dressing %s again with the arms further out (%d crossings at %.0f degrees)", pattern.name,
                         garment.stats["self_intersections"], angle)
     return start, garment
@@ -456,7 +471,7 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
     # made to measure: drafted on the wearer's body with its tape crotch height
     made_to_measure = fit_model is None and request.garment_obj is None
     pm = (made_to_measure_measurements if made_to_measure else drafting_measurements)(person.shape)
-    target = posed_body(person.shape, "a", pm["crotch_height"])
+    target = posed_body(person.shape, "a", pm["crotch_height"], thigh_gap_for(request.garment))
     t2 = time.perf_counter()
     if request.garment_obj is not None:  # already around the person: nothing to morph
         from tryon.drape.obj_garment import garment_from_obj
@@ -470,7 +485,7 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
         if request.print_image is not None:  # a print that does not fit is refused before dressing
             GraphicPrint.load(request.print_image, request.print_width_cm).placed_on(pattern)
         start, garment = dress_on_fit_model(pattern, model_shape, m["crotch_height"], load_fabric(request.fabric),
-                                            request.edge_length, progress)
+                                            request.edge_length, progress, thigh_gap_for(request.garment))
     timings["dress_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     x, frames, times, stats, solver = simulate_drape(request, garment, start, target, progress=progress)

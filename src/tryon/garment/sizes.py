@@ -41,3 +41,13 @@ def size_measurements(size: str, gender: str) -> dict[str, float]:
     }
 
 
+
+
+def largest_girth(gender: str, girth: str) -> float:
+    """The largest chest, waist or hip (cm) the chart's largest size is for: the top of
+    its EN 13402-3 chest interval, moved by the regular figure's waist or hip offset."""
+    chart = size_chart()
+    if gender not in ("male", "female"):
+        raise TryonError(f"gender must be 'male' or 'female' for a standard size, got {gender!r}")
+    top = float(chart[gender][SIZES[-1]]["chest_cm"][1])
+    return top if girth == "chest" else top + chart["secondary"][gender][f"{girth}_minus_chest"]

@@ -4,8 +4,8 @@ that close instead, and the chart's size for a chest girth."""
 
 from __future__ import annotations
 
-from tryon.garment.drafts import DEFINING_GIRTH, size_too_small
-from tryon.garment.sizes import SIZES, size_chart, size_measurements
+from tryon.garment.drafts import DEFINING_GIRTH, WAISTBAND_GARMENTS, size_too_small
+from tryon.garment.sizes import SIZES, largest_girth, size_chart, size_measurements
 
 MADE_TO_MEASURE = "MTM"
 
@@ -14,8 +14,17 @@ def chart_size(garment: str, girths: dict, gender: str) -> tuple[str, str | None
     """The standard size whose chest (tops) or hip (bottoms) is nearest the body's, or the
     next larger one when that is too small for the body (`tryon drape` refuses it: a
     waistband that cannot close), or made to measure (`MADE_TO_MEASURE`, drafted on the
-    body) when every larger size is too; the second item says why."""
+    body) when every larger size is too, or when that girth (or, for skirts and trousers,
+    the waist) is beyond the chart's largest size (`largest_girth`: a 200 cm, 180 kg man's
+    144 cm chest in a men's XXL, for up to 129 cm, clung to his front and back with 0.4 cm
+    of ease; a 192 cm, 148 kg man's 126 cm waist strained XXL trousers, for up to 117 cm,
+    by half); the second item says why."""
     key = f"{DEFINING_GIRTH[garment]}_cm"
+    for girth in (DEFINING_GIRTH[garment], *(("waist",) if garment in WAISTBAND_GARMENTS else ())):
+        top = largest_girth(gender, girth)
+        if girths[f"{girth}_cm"] > top:
+            return MADE_TO_MEASURE, (f"this body's {girth}, {girths[f'{girth}_cm']:.0f} cm, is beyond the size chart: its "
+                                     f"largest size, {SIZES[-1]}, is for a {girth} of up to {top:.0f} cm")
     nearest = min(SIZES, key=lambda s: abs(size_measurements(s, gender)[key] - girths[key]))
     why = None
     for size in SIZES[SIZES.index(nearest):]:
