@@ -107,9 +107,9 @@ def passed(rec: dict) -> bool:
 
 def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: float | None = None,
                      timeout_s: float = 360.0, bodies: list[str] | None = None) -> list[dict]:
-    """Drape every cell (resuming finished ones; `bodies`: only those rows), print the
-    table, write JSON and the picture grid (`<json stem>.png`); cell folders in
-    `<json stem>-cells/`."""
+    """Drape every cell (resuming finished ones; `bodies`: only those rows, the others
+    kept in the JSON as the last run wrote them), print the table, write JSON and the
+    picture grid (`<json stem>.png`); cell folders in `<json stem>-cells/`."""
     json_path = Path(json_path)
     edge = edge_length or (0.03 if quick else 0.012)
     cell_root = claim_work_dir(json_path.with_name(json_path.stem + "-cells"), resume=True)
@@ -137,6 +137,10 @@ def run_drape_matrix(json_path: str | Path, quick: bool = False, edge_length: fl
                 fh.write(dumps_json(rec, indent=2))
         records.append(rec)
         _print_row(rec)
+    if bodies and json_path.exists():  # the other rows as the last run left them
+        chosen = {(b.gender, b.height_cm, b.bmi) for b, _, _ in cells(quick, bodies)}
+        kept = [r for r in json.loads(json_path.read_text()) if (r["gender"], r["height_cm"], r["bmi"]) not in chosen]
+        records = kept + records
     with atomic_write(json_path) as fh:
         fh.write(dumps_json(records, indent=2))
     picture = picture_grid(records, cell_root, json_path.with_suffix(".png"))

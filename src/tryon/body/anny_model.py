@@ -164,6 +164,8 @@ def cache_lock(cache: Path, wait_s: float = 900.0):
         cache.mkdir(parents=True, exist_ok=True)
         fh = open(cache / ".tryon-build.lock", "a")
     except OSError:
+        fh = None
+    if fh is None:  # outside the except block: errors of the block are not chained to this one
         yield
         return
     with fh:

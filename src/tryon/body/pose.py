@@ -12,6 +12,7 @@ that full thighs do not pass through each other (`clear_thighs`).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +20,8 @@ import torch
 
 from tryon.body.anny_model import BodyShape
 from tryon.errors import TryonError
+
+log = logging.getLogger(__name__)
 
 ARM_SIDES = ("L", "R")
 ARM_WORDS = ("upperarm", "lowerarm", "wrist", "finger", "metacarpal")
@@ -186,6 +189,9 @@ def clear_thighs(shape: BodyShape, rotations: np.ndarray, gap: float = 0.0) -> t
         v = skin(rest, shape.weight_index, shape.weight, bone_transforms(shape, R)).numpy()
         clear = thigh_crossings(v, shape.faces, part) == 0 and (gap <= 0 or gap_between_thighs(v, part) >= gap)
         if clear or deg >= MAX_STANCE_DEG:
+            if not clear:
+                log.warning("the thighs are not %s at the widest stance, %.0f degrees per leg",
+                            f"{1000 * gap:.0f} mm apart" if gap > 0 else "clear of each other", deg)
             return R, deg
         deg += STANCE_STEP_DEG
 

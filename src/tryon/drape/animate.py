@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from tryon.body.anny_model import ShapeParams, body_model
 from tryon.body.motion import BLEND_TIME, load_motion, motion_keyframes
-from tryon.body.pose import named_pose
+from tryon.drape.pipeline import drape_pose
 from tryon.errors import TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.pattern import Pattern
@@ -70,7 +70,7 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
     state = load_drape(drape_dir)
     request = state["request"]
     shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"]))
-    start_pose = named_pose(shape, "a")
+    start_pose = drape_pose(shape, request.get("garment", ""))
     body_motion = load_motion(motion, shape).repeated(repeat)
     frames, times = motion_keyframes(shape, body_motion, start_pose, blend_time=blend_time)
     if np.abs(frames[0] - state["body_vertices"]).max() > 1e-3:

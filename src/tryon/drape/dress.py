@@ -512,15 +512,16 @@ TIGHT_CLEARANCE = 0.005
 def _welded_clear_of_skin(pos: np.ndarray, faces: np.ndarray, body: BodyPose,
                           clearance: float) -> tuple[np.ndarray, int, float]:
     """`clear_of_skin` of a garment welded where it was placed, at `clearance`, or at
-    `TIGHT_CLEARANCE` when that would put the garment through itself: (positions, how
-    many moved, the clearance used)."""
+    `TIGHT_CLEARANCE` when that would put the garment through itself and the tighter push
+    crosses less: (positions, how many moved, the clearance used)."""
     from tryon.sim.geometry import edge_face_intersections, mesh_edges
 
     out, pushed = clear_of_skin(pos, body, clearance)
     edges = mesh_edges(faces)
-    if clearance > TIGHT_CLEARANCE and len(edge_face_intersections(out, edges, out, faces, True)):
+    crossings = len(edge_face_intersections(out, edges, out, faces, True))
+    if clearance > TIGHT_CLEARANCE and crossings:
         tight, n = clear_of_skin(pos, body, TIGHT_CLEARANCE)
-        if len(edge_face_intersections(tight, edges, tight, faces, True)) == 0:
+        if len(edge_face_intersections(tight, edges, tight, faces, True)) < crossings:
             log.info("pushed out of the skin to %.0f mm only: at %.0f mm the garment crossed itself",
                      1000 * TIGHT_CLEARANCE, 1000 * clearance)
             return tight, n, TIGHT_CLEARANCE

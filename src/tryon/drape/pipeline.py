@@ -37,7 +37,7 @@ import torch
 from tryon.body.fit import BodyFit, Measurements, fit_body
 from tryon.body.measure import drafting_measurements, made_to_measure_measurements
 from tryon.body.motion import morph_keyframes, smoothstep
-from tryon.body.pose import POSES, BodyPose, arm_pose, clear_thighs, posed_body
+from tryon.body.pose import POSES, BodyPose, arm_pose, clear_thighs, named_pose, posed_body
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
 from tryon.garment.drafts import GARMENTS, WAISTBAND_GARMENTS, draft
@@ -432,6 +432,12 @@ def thigh_gap_for(garment: str) -> float:
     return TROUSER_THIGH_GAP if garment == "trousers" else 0.0
 
 
+def drape_pose(shape, garment: str) -> np.ndarray:
+    """The A-pose a drape of `garment` stands in (thighs `thigh_gap_for` it apart): what
+    the drape's body is, and where an animation of the drape starts."""
+    return named_pose(shape, "a", thigh_gap_for(garment))
+
+
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
                        progress: bool = True, thigh_gap: float = 0.0) -> tuple[BodyPose, DressedGarment]:
     """The fit model's pose and the garment dressed on it: in the A-pose (thighs at least
@@ -471,7 +477,7 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
     # made to measure: drafted on the wearer's body with its tape crotch height
     made_to_measure = fit_model is None and request.garment_obj is None
     pm = (made_to_measure_measurements if made_to_measure else drafting_measurements)(person.shape)
-    target = posed_body(person.shape, "a", pm["crotch_height"], thigh_gap_for(request.garment))
+    target = posed_body(person.shape, drape_pose(person.shape, request.garment), pm["crotch_height"])
     t2 = time.perf_counter()
     if request.garment_obj is not None:  # already around the person: nothing to morph
         from tryon.drape.obj_garment import garment_from_obj

@@ -96,7 +96,7 @@ class FlungRedo:
         if not len(speeds) or speeds.max() <= self.limit:  # NaN speeds compare False: redone
             return stepped, None
         flung = {"t": round(before.t, 4), "speed_m_s": round(float(speeds.max()), 2),
-                 "vertices": np.argsort(-speeds)[:5].tolist()}
+                 "vertices": np.argsort(-np.nan_to_num(speeds, nan=np.inf))[:5].tolist()}
         state = ClothState(before.x, torch.zeros_like(before.v), before.t)
         for _ in range(self.halves):
             state, stats = solver.step(state, dt / self.halves, _inputs(control, k, state.t))
