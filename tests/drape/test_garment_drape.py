@@ -474,7 +474,7 @@ def test_welded_trousers_between_full_thighs_leave_the_skin_without_crossing_the
 
     person = fit_body(Measurements(height_cm=175, weight_kg=137.8, gender="female"))
     m = made_to_measure_measurements(person.shape)
-    body = posed_body(person.shape, "a", m["crotch_height"], pipeline.thigh_gap_for("trousers"))
+    body = posed_body(person.shape, pipeline.drape_pose(person.shape, "trousers"), m["crotch_height"])
     mesh = triangulate_pattern(draft("trousers", m, size="made-to-measure", meta={"gender": "female"}), 0.012)
     x = place_pattern(mesh, body, 0.012)
     pos, faces, _, _ = merge_stitched(mesh, x)
@@ -485,7 +485,7 @@ def test_welded_trousers_between_full_thighs_leave_the_skin_without_crossing_the
 
     assert crossings(pos) == 0
     assert crossings(clear_of_skin(pos, body, 0.012)[0]) > 10
-    out, pushed, used = _welded_clear_of_skin(pos, faces, body, 0.012)
+    out, pushed, used = _welded_clear_of_skin(pos, faces, edges, body, 0.012)
     assert used == TIGHT_CLEARANCE and pushed > 0 and crossings(out) == 0
     d, _, _ = geo.nearest_surface_points(out, body.vertices, body.faces)
     assert d.min() > 0.0  # out of the skin

@@ -258,12 +258,10 @@ def body_parts(bone_labels: list[str], weight_index: np.ndarray, weight: np.ndar
     return score.argmax(1)
 
 
-def posed_body(shape: BodyShape, pose: str | np.ndarray = "a", crotch_height: float | None = None,
-               thigh_gap: float = 0.0) -> BodyPose:
-    """The body in a named pose ('a', 't', 'rest'; thighs at least `thigh_gap` apart) or
-    given rotations, with bone heads (plus a 'crotch' landmark when its height is given)
-    moved along."""
-    R = named_pose(shape, pose, thigh_gap) if isinstance(pose, str) else pose
+def posed_body(shape: BodyShape, pose: str | np.ndarray = "a", crotch_height: float | None = None) -> BodyPose:
+    """The body in a named pose ('a', 't', 'rest') or given rotations, with bone heads (plus
+    a 'crotch' landmark when its height is given) moved along."""
+    R = named_pose(shape, pose) if isinstance(pose, str) else pose
     G = bone_transforms(shape, R)
     v = skin(shape.vertices.detach(), shape.weight_index, shape.weight, G).numpy()
     heads = dict(zip(shape.bone_labels, posed_heads(shape, G)))

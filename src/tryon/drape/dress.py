@@ -509,15 +509,14 @@ def clear_of_skin(x: np.ndarray, body: BodyPose, clearance: float) -> tuple[np.n
 TIGHT_CLEARANCE = 0.005
 
 
-def _welded_clear_of_skin(pos: np.ndarray, faces: np.ndarray, body: BodyPose,
+def _welded_clear_of_skin(pos: np.ndarray, faces: np.ndarray, edges: np.ndarray, body: BodyPose,
                           clearance: float) -> tuple[np.ndarray, int, float]:
     """`clear_of_skin` of a garment welded where it was placed, at `clearance`, or at
     `TIGHT_CLEARANCE` when that would put the garment through itself and the tighter push
     crosses less: (positions, how many moved, the clearance used)."""
-    from tryon.sim.geometry import edge_face_intersections, mesh_edges
+    from tryon.sim.geometry import edge_face_intersections
 
     out, pushed = clear_of_skin(pos, body, clearance)
-    edges = mesh_edges(faces)
     crossings = len(edge_face_intersections(out, edges, out, faces, True))
     if clearance > TIGHT_CLEARANCE and crossings:
         tight, n = clear_of_skin(pos, body, TIGHT_CLEARANCE)
@@ -769,14 +768,15 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
         x, stats = sew(mesh, x, body, fabric, max_gap=max(0.01, 0.5 * edge_length), progress=progress)
         stats["sleeve_shift_m"] = shift
     pos, faces, corner_uv, group = merge_stitched(mesh, x)
+    edges = mesh_edges(faces)
     if closed:
-        pos, pushed, pushed_to = _welded_clear_of_skin(pos, faces, body, clearance)
+        pos, pushed, pushed_to = _welded_clear_of_skin(pos, faces, edges, body, clearance)
         pos = _uncollapse(pos, faces, corner_uv, body, pushed_to)
         stats["skin_clearance_m"] = pushed_to
     else:
         # welding a seam a millimetre or two open can put it through a tight fold next to
         # it (the bodice folded back under the armhole at the armpit): smooth such folds out
-        pos, unfolded = _unfold(pos, faces, mesh_edges(faces), np.zeros(len(pos), np.int64), body, DRESSING_THICKNESS)
+        pos, unfolded = _unfold(pos, faces, edges, np.zeros(len(pos), np.int64), body, DRESSING_THICKNESS)
     uv = np.zeros((len(pos), 2))
     uv[faces.reshape(-1)] = corner_uv.reshape(-1, 2)
     # a placement welded at once relaxes from its placement strain; a sewn one from the
@@ -787,8 +787,7 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
                   "sew_s": stats["sew_s"] + relaxed["sew_s"]})
     owner = mesh.panel_of_vertex[mesh.faces[:, 0]]
     counts = np.bincount(group, minlength=len(pos))
-    e = mesh_edges(faces)
-    n_self, _ = geo.count_intersections(pos, faces, e, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
+    n_self, _ = geo.count_intersections(pos, faces, edges, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64))
     stats.update({"vertices": int(len(pos)), "faces": int(len(faces)), "pushed_out_at_start": pushed, "unfolded_crossings": unfolded,
                   "self_intersections": int(n_self), "edge_length_m": edge_length, "dress_s": time.perf_counter() - t0})
     if n_self:

@@ -439,14 +439,20 @@ def drape_pose(shape, garment: str) -> np.ndarray:
 
 
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
-                       progress: bool = True, thigh_gap: float = 0.0) -> tuple[BodyPose, DressedGarment]:
+                       progress: bool = True, thigh_gap: float = 0.0,
+                       a_pose: np.ndarray | None = None) -> tuple[BodyPose, DressedGarment]:
     """The fit model's pose and the garment dressed on it: in the A-pose (thighs at least
-    `thigh_gap` apart), or, for a garment with sleeves, with the arms further out when the
-    garment sewn there crosses itself (`DRESS_ARM_ANGLES`)."""
+    `thigh_gap` apart; `a_pose`: those rotations when already found), or, for a garment with
+    sleeves, with the arms further out when the garment sewn there crosses itself
+    (`DRESS_ARM_ANGLES`)."""
     sleeved = any(p.placement.get("part") == "arm" for p in pattern.panels)
     angles = DRESS_ARM_ANGLES if sleeved else DRESS_ARM_ANGLES[:1]
     for angle in angles:
-        start = posed_body(shape, clear_thighs(shape, arm_pose(shape, angle), thigh_gap)[0], crotch_height)
+        if angle == POSES["a"] and a_pose is not None:
+            R = a_pose
+        else:
+            R = clear_thighs(shape, arm_pose(shape, angle), thigh_gap)[0]
+        start = posed_body(shape, R, crotch_height)
         garment = dress_cached(pattern, start, fabric, edge_length, progress=progress)
         garment.stats["dress_arm_angle_deg"] = angle
         if garment.stats.get("self_intersections", 0) == 0:
@@ -477,7 +483,8 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
     # made to measure: drafted on the wearer's body with its tape crotch height
     made_to_measure = fit_model is None and request.garment_obj is None
     pm = (made_to_measure_measurements if made_to_measure else drafting_measurements)(person.shape)
-    target = posed_body(person.shape, drape_pose(person.shape, request.garment), pm["crotch_height"])
+    target_pose = drape_pose(person.shape, request.garment)
+    target = posed_body(person.shape, target_pose, pm["crotch_height"])
     t2 = time.perf_counter()
     if request.garment_obj is not None:  # already around the person: nothing to morph
         from tryon.drape.obj_garment import garment_from_obj
@@ -491,7 +498,8 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
         if request.print_image is not None:  # a print that does not fit is refused before dressing
             GraphicPrint.load(request.print_image, request.print_width_cm).placed_on(pattern)
         start, garment = dress_on_fit_model(pattern, model_shape, m["crotch_height"], load_fabric(request.fabric),
-                                            request.edge_length, progress, thigh_gap_for(request.garment))
+                                            request.edge_length, progress, thigh_gap_for(request.garment),
+                                            a_pose=target_pose if model_shape is person.shape else None)
     timings["dress_s"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     x, frames, times, stats, solver = simulate_drape(request, garment, start, target, progress=progress)
