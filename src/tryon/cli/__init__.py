@@ -336,7 +336,7 @@ def _cmd_body_tapes(args: argparse.Namespace) -> int:
     if args.anny_average:
         extra = sorted(k for k in m.tapes() if k not in ("chest", "waist", "hip"))
         if extra:
-            raise TryonError(f"--anny-average fits stature, weight and chest / waist / hip only; drop "
+            raise TryonError("--anny-average fits stature, weight and chest / waist / hip only; drop "
                              + ", ".join(f"--{k.replace('_', '-')}-cm" for k in extra))
     fit = fit_body(m, prior=not args.anny_average)
     tapes = tape_measurements(fit.shape)
@@ -388,8 +388,34 @@ def _cmd_body_warmstart(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fabric_classes(args: argparse.Namespace) -> int:
+    from tryon.fabric import load_fabric
+    from tryon.perceive.fabric_classes import build_classes, default_classes, save_classes
+
+    if args.rebuild:
+        print(f"fabric classes rewritten: {save_classes(build_classes(progress=True))}")
+    classes = default_classes()
+    presets = classes.preset_classes()
+    if args.json:
+        print(dumps_json({**classes.to_dict(), "presets": {n: classes.name(c) for n, c in presets.items()}}, indent=2))
+        return 0
+    print(f"{classes.count} classes: {classes.stretch_bins} stretching x {classes.bend_bins} bending bins "
+          "(log10 stiffness, softest first; edges at equal steps of deformation)")
+    print("stretching N/m: " + " | ".join(f"{10 ** a:.0f}-{10 ** b:.0f}" for a, b in zip(classes.stretch_edges,
+                                                                                        classes.stretch_edges[1:])))
+    print("bending uN.m:   " + " | ".join(f"{1e6 * 10 ** a:.1f}-{1e6 * 10 ** b:.1f}" for a, b in zip(classes.bend_edges,
+                                                                                                   classes.bend_edges[1:])))
+    for name, c in presets.items():
+        s, b = classes.position(load_fabric(name))
+        print(f"{name:20s} {classes.name(c):6s} stretch {10 ** s:6.0f} N/m, bending {1e6 * 10 ** b:5.1f} uN.m")
+    return 0
+
+
 def _cmd_fabrics(args: argparse.Namespace) -> int:
     from tryon.fabric import preset_summaries
+
+    if args.classes or args.rebuild:
+        return _cmd_fabric_classes(args)
 
     rows = preset_summaries()
     if args.json:
@@ -699,8 +725,12 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--seed", type=int, default=0)
     w.set_defaults(func=_cmd_body_warmstart)
 
-    f = sub.add_parser("fabrics", help="list fabric presets")
+    f = sub.add_parser("fabrics", help="list fabric presets (--classes: the 54 fabric classes of fabric from video)")
     f.add_argument("--json", action="store_true")
+    f.add_argument("--classes", action="store_true",
+                   help="the fabric classes: bin edges, and the class of every measured fabric")
+    f.add_argument("--rebuild", action="store_true",
+                   help="with --classes: measure the sensitivity tests again and rewrite the shipped bin edges")
     f.set_defaults(func=_cmd_fabrics)
 
     b = sub.add_parser("bench", help="measure speed (JSON out, ratios against references)")

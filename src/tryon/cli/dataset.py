@@ -82,6 +82,26 @@ def _cmd_dataset_bodies(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset_clips(args: argparse.Namespace) -> int:
+    from tryon.dataset import BodyRanges
+    from tryon.dataset.clips import ClipDatasetSpec, make_clip_dataset
+    from tryon.io.atomic import check_output_dir
+
+    genders = args.genders or (["female"] if args.garment in ("skirt", "dress") else ["female", "male"])
+    spec = ClipDatasetSpec(garment=args.garment, sizes=tuple(args.sizes), count=args.count, edge_length=args.edge_length,
+                           frames=args.frames, fps=args.fps, motions=tuple(args.motions), seed=args.seed,
+                           ranges=BodyRanges(genders=tuple(genders), bmi=tuple(args.bmi)), shard_size=args.shard_size)
+    spec.validate()
+    check_output_dir(args.out, force=args.force)
+    store, report = make_clip_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
+                                      force=args.force, progress=not args.quiet, limit=args.limit)
+    print(json.dumps({"made": report.made, "skipped": report.skipped, "failed": report.failed,
+                      "wall_s": round(report.wall_s, 1), "clips_per_core_hour": round(report.samples_per_core_hour, 1)},
+                     indent=1))
+    print(f"dataset: {store.folder} (manifest.json, shards/, references/)")
+    return 0
+
+
 def _cmd_dataset_pack(args: argparse.Namespace) -> int:
     from tryon.dataset.loading import load_drape_dataset
     from tryon.dataset.pack import pack_dataset
@@ -170,6 +190,23 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--shard-size", type=int, default=64, help="people per shard file")
     _generator_args(b)
     b.set_defaults(func=_cmd_dataset_bodies)
+    c = kinds.add_parser("clips", help="short clips of a garment of a known fabric class on a moving body (for "
+                                       "fabric from video)")
+    c.add_argument("--garment", default="tshirt", help="tshirt, longsleeve, skirt, trousers or dress")
+    c.add_argument("--sizes", nargs="+", default=["XS", "S", "M", "L", "XL", "XXL"],
+                   help="standard sizes; each body wears its own (the nearest by the chart)")
+    c.add_argument("--count", type=int, default=540, help="clips (the fabric classes take turns)")
+    c.add_argument("--edge-length", type=float, default=0.025, help="garment triangle edge length in metres")
+    c.add_argument("--frames", type=int, default=25, help="frames per clip")
+    c.add_argument("--fps", type=float, default=5.0, help="frames per second of the clip")
+    c.add_argument("--motions", nargs="+", default=["walk", "arm-raise", "turn"], help="built-in motions to draw from")
+    c.add_argument("--genders", nargs="+", choices=["female", "male"],
+                   help="default: female for skirt and dress, both for the other garments")
+    c.add_argument("--bmi", type=float, nargs=2, default=[17.0, 38.0], metavar=("LOW", "HIGH"), help="BMI range (uniform)")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--shard-size", type=int, default=32, help="clips per shard file")
+    _generator_args(c)
+    c.set_defaults(func=_cmd_dataset_clips)
     k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control; "
                                        "packing again into it adds only what changed")
     k.add_argument("dataset", help="dataset folder")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -61,10 +62,6 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
     """The draped garment of `drape_dir` as cloth and its body moving through `motion`
     (a built-in name, .npz or .bvh; a cyclic one played `repeat` times) as a key-framed
     obstacle, ready to simulate."""
-    from tryon.sim.mesh import ClothMesh
-    from tryon.sim.model import ClothModel, CollisionSettings
-    from tryon.sim.obstacles import Motion, Obstacle
-
     if not 0.001 <= dt <= 1 / 30:
         raise TryonError(f"time step {dt} s is outside 0.001-0.033 s")
     state = load_drape(drape_dir)
@@ -72,29 +69,62 @@ def animation_scene(drape_dir: str | Path, motion: str = "walk", dt: float = 0.0
     shape = body_model().rest_shape(ShapeParams.from_dict(state["body_params"]))
     start_pose = drape_pose(shape, request.get("garment", ""))
     body_motion = load_motion(motion, shape).repeated(repeat)
-    frames, times = motion_keyframes(shape, body_motion, start_pose, blend_time=blend_time)
-    if np.abs(frames[0] - state["body_vertices"]).max() > 1e-3:
-        raise TryonError(f"{drape_dir}: the stored body does not match its parameters (drape made with another body "
-                         f"model version?); run `tryon drape` again")
-    body = Obstacle("body", frames[0], state["body_faces"], Motion(keyframes=frames, keyframe_times=times))
-    cloth = ClothMesh(torch.from_numpy(state["x"]), torch.from_numpy(state["uv"]), torch.from_numpy(state["faces"]),
-                      name=state["pattern"].get("name", "garment"), face_uv=torch.from_numpy(state["corner_uv"]))
-    fabric = load_fabric(request["fabric"])
     printed = drape_print(drape_dir, state)
+    cloth = GarmentAtRest(state["x"], state["uv"], state["faces"], state["corner_uv"], state["pattern"].get("name", "garment"))
+    scene = garment_motion_scene(shape, start_pose, cloth, load_fabric(request["fabric"]), body_motion,
+                                 request["thickness"], request["friction"], dt, duration, blend_time,
+                                 regions=[] if printed is None else [printed[0].region(printed[1])],
+                                 expected_body=state["body_vertices"], source=str(drape_dir))
+    scene.spec = {"animation": {"drape": str(Path(drape_dir).resolve()), "motion": str(motion), "dt": dt,
+                                "duration": scene.duration, "repeat": int(repeat), "blend_time": blend_time,
+                                "motion_frames": int(body_motion.num_frames),
+                                "print": None if printed is None else printed[0].describe(printed[1])}}
+    scene.origin = PatternOrigin(float(request["edge_length"]), np.asarray(state["face_panel"]),
+                                 functools.partial(remesh_pattern, Pattern.from_dict(state["pattern"])))
+    return scene
+
+
+@dataclass
+class GarmentAtRest:
+    """A garment's rest positions on its body, its material coordinates and faces."""
+
+    x: np.ndarray
+    uv: np.ndarray
+    faces: np.ndarray
+    corner_uv: np.ndarray
+    name: str = "garment"
+
+
+def garment_motion_scene(shape, start_pose: np.ndarray, garment: GarmentAtRest, fabric, body_motion,
+                         thickness: float, friction: float, dt: float = 0.01, duration: float | None = None,
+                         blend_time: float = BLEND_TIME, regions: list | None = None,
+                         expected_body: np.ndarray | None = None, source: str = "garment") -> Scene:
+    """`garment` (at rest on `shape` posed in `start_pose`) as cloth, and the body blending
+    from that pose into `body_motion` as a key-framed obstacle. `expected_body`: the body
+    the garment rests on, checked against the skinned start (a drape made with another
+    body model version does not match)."""
+    from tryon.sim.mesh import ClothMesh
+    from tryon.sim.model import ClothModel, CollisionSettings
+    from tryon.sim.obstacles import Motion, Obstacle
+
+    if not 0.001 <= dt <= 1 / 30:
+        raise TryonError(f"time step {dt} s is outside 0.001-0.033 s")
+    frames, times = motion_keyframes(shape, body_motion, start_pose, blend_time=blend_time)
+    if expected_body is not None and np.abs(frames[0] - expected_body).max() > 1e-3:
+        raise TryonError(f"{source}: the stored body does not match its parameters (drape made with another body "
+                         f"model version?); run `tryon drape` again")
+    faces = shape.faces.numpy() if hasattr(shape.faces, "numpy") else np.asarray(shape.faces)
+    body = Obstacle("body", frames[0], faces, Motion(keyframes=frames, keyframe_times=times))
+    cloth = ClothMesh(torch.as_tensor(garment.x), torch.as_tensor(garment.uv), torch.as_tensor(garment.faces),
+                      name=garment.name, face_uv=torch.as_tensor(garment.corner_uv))
     model = ClothModel(cloth, fabric, obstacles=[body],
-                       collision=CollisionSettings(thickness=request["thickness"], friction=request["friction"], self_friction=0.3),
-                       regions=[] if printed is None else [printed[0].region(printed[1])])
+                       collision=CollisionSettings(thickness=thickness, friction=friction, self_friction=0.3),
+                       regions=regions or [])
     total = float(times[-1]) if duration is None else float(duration)
     if total <= 0:
         raise TryonError(f"animation duration must be positive, got {total}")
-    spec = {"animation": {"drape": str(Path(drape_dir).resolve()), "motion": str(motion), "dt": dt, "duration": total,
-                          "repeat": int(repeat), "blend_time": blend_time, "motion_frames": int(body_motion.num_frames),
-                          "print": None if printed is None else printed[0].describe(printed[1])}}
-    origin = PatternOrigin(float(request["edge_length"]), np.asarray(state["face_panel"]),
-                           functools.partial(remesh_pattern, Pattern.from_dict(state["pattern"])))
     return Scene(name=f"animate-{body_motion.name}", model=model, dt=dt, duration=total, frame_time=FRAME_TIME,
-                 options=StepOptions(), description=f"{cloth.name} on a body doing '{body_motion.name}'", spec=spec,
-                 origin=origin)
+                 options=StepOptions(), description=f"{cloth.name} on a body doing '{body_motion.name}'", spec={})
 
 
 def frame_metrics(scene: Scene, positions: np.ndarray, times: np.ndarray, base: list[dict]) -> list[dict]:

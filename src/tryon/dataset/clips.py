@@ -1,0 +1,208 @@
+"""Clip datasets for fabric from video: a garment of a known fabric class on a sampled
+body moving through a motion, kept as the simulation (garment points per frame and what
+makes the body's frames again), to be rendered into pictures by a later stage.
+
+A unit draws a body (`bodies.sample_body`, as the drape datasets do), its own size of the
+garment (the size whose chart girths lie nearest), a fabric class (unit % 54: every class
+equally often) and a fabric inside it (`FabricClasses.sample_fabric`: a measured fabric
+scaled into the class), a built-in motion with a speed and an amplitude, and a time of
+day for the clip to start in the motion. The garment of that size is dressed once on its
+fit model (`drapes.build_references`, shared by every clip of the size), draped onto the
+body as `tryon drape` does (in the clip's fabric), then the body blends from the A-pose
+into the motion and the garment follows (`tryon.drape.animate.garment_motion_scene`).
+The clip is `frames` frames at `fps` after the blend (the chapter's clips: 25 at 5 fps).
+
+Stored per clip: the garment's vertices per frame (float32, metres) and at rest before
+the motion, the frame times, the fabric class with the fabric's features and data, the
+body (shape vector, gender, stature, BMI), the motion (name, speed, amplitude, start),
+the size, the split, and how the simulation went.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tryon.body.motion import BLEND_TIME, BUILTIN_MOTIONS, load_motion
+from tryon.body.motion_data import BodyMotion
+from tryon.body.measure import drafting_measurements
+from tryon.body.pose import posed_body
+from tryon.dataset.bodies import BodyRanges, sample_body
+from tryon.dataset.drapes import (
+    DATASET_DRAPE, GENDER_CODE, Reference, build_references, own_size_index, shape_vector, split_of,
+)
+from tryon.dataset.store import Manifest
+from tryon.drape.animate import GarmentAtRest, garment_motion_scene
+from tryon.drape.pipeline import DrapeRequest, drape_pose, simulate_drape
+from tryon.errors import TryonError
+from tryon.fabric.blend import fabric_features
+from tryon.garment.drafts import GARMENTS
+from tryon.garment.sizes import SIZES
+from tryon.perceive.fabric_classes import FabricClasses, default_classes
+
+KIND = "clips"
+GENERATOR_VERSION = 1
+SPEED = (0.7, 1.4)       # the motion played this many times its recorded speed
+AMPLITUDE = (0.6, 1.2)   # its joint rotations (from the rest pose) scaled by this
+
+
+@dataclass
+class ClipDatasetSpec:
+    """`count` clips of one garment."""
+
+    garment: str = "tshirt"
+    sizes: tuple[str, ...] = ("XS", "S", "M", "L", "XL", "XXL")
+    count: int = 540
+    edge_length: float = 0.025
+    frames: int = 25
+    fps: float = 5.0
+    dt: float = 0.01
+    motions: tuple[str, ...] = BUILTIN_MOTIONS
+    seed: int = 0
+    ranges: BodyRanges = field(default_factory=lambda: BodyRanges(bmi=(17.0, 38.0)))
+    reference_fabric: str = "gray-interlock"  # what the sizes are dressed in on their fit models
+    topology: tuple[str, str] = ("female", "M")
+    shard_size: int = 32
+    train_fraction: float = 0.8
+    val_fraction: float = 0.1
+
+    def validate(self) -> None:
+        if self.garment not in GARMENTS:
+            raise TryonError(f"unknown garment {self.garment!r}; clips dress one of {', '.join(GARMENTS)}")
+        self.sizes = tuple(s.upper() for s in self.sizes)
+        bad = [s for s in self.sizes if s not in SIZES]
+        if bad or not self.sizes or list(self.sizes) != [s for s in SIZES if s in self.sizes]:
+            raise TryonError(f"sizes {list(self.sizes)}: give distinct standard sizes in order ({', '.join(SIZES)})")
+        if not 1 <= self.count <= 1_000_000:
+            raise TryonError(f"--count {self.count}: give 1 to 1,000,000 clips")
+        if not 0.008 <= self.edge_length <= 0.05:
+            raise TryonError(f"edge length {self.edge_length} m is outside 0.008-0.05 m")
+        if not (2 <= self.frames <= 300 and 1.0 <= self.fps <= 30.0):
+            raise TryonError(f"{self.frames} frames at {self.fps} fps: give 2-300 frames at 1-30 fps")
+        if not 0.001 <= self.dt <= 1.0 / 30.0 or self.dt > 1.0 / self.fps:
+            raise TryonError(f"time step {self.dt} s: give 0.001-0.033 s, no longer than a frame")
+        bad = [m for m in self.motions if m not in BUILTIN_MOTIONS]
+        if bad or not self.motions:
+            raise TryonError(f"motions {list(self.motions)}: use some of {', '.join(BUILTIN_MOTIONS)}")
+        if not 1 <= self.shard_size <= 4096:
+            raise TryonError(f"shard size {self.shard_size} is outside 1-4096 samples")
+
+    def manifest(self, software_version: str, classes: FabricClasses | None = None) -> Manifest:
+        self.validate()
+        classes = classes or default_classes()
+        spec = {"garment": self.garment, "sizes": list(self.sizes), "edge_length": self.edge_length,
+                "frames": self.frames, "fps": self.fps, "dt": self.dt, "motions": list(self.motions),
+                "blend_time": BLEND_TIME, "speed": list(SPEED), "amplitude": list(AMPLITUDE),
+                "ranges": self.ranges.to_dict(), "fabric": self.reference_fabric,
+                "topology": {"gender": self.topology[0], "size": self.topology[1]},
+                "fabric_classes": {k: v for k, v in classes.to_dict().items() if k != "provenance"},
+                "drape": {"max_settle_time": 1.0}}
+        split = {"rule": "by body: train / val / test drawn per body from the seed", "train": self.train_fraction,
+                 "val": self.val_fraction, "extrapolation_bmi": None}
+        return Manifest(KIND, GENERATOR_VERSION, software_version, self.seed, self.count, self.shard_size, spec, split,
+                        created=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+
+
+def varied_motion(motion: BodyMotion, speed: float, amplitude: float) -> BodyMotion:
+    """`motion` played `speed` times as fast, its rotations and root travel scaled by `amplitude`."""
+    return BodyMotion(motion.rotations * amplitude, list(motion.bone_labels), motion.fps * speed,
+                      motion.root_translation * amplitude, f"{motion.name}x{speed:.2f}a{amplitude:.2f}")
+
+
+def clip_motion(manifest: Manifest, unit: int) -> tuple[BodyMotion, dict[str, np.ndarray]]:
+    """The unit's motion, long enough for the clip, and what a sample records of it."""
+    spec = manifest.spec
+    rng = np.random.default_rng([manifest.seed, unit, 21])
+    name = spec["motions"][int(rng.integers(len(spec["motions"])))]
+    speed, amplitude = float(rng.uniform(*spec["speed"])), float(rng.uniform(*spec["amplitude"]))
+    motion = varied_motion(load_motion(name), speed, amplitude)
+    needed = (spec["frames"] - 1) / spec["fps"]
+    cycles = int(np.ceil(needed / max(motion.duration, 1e-9))) + 1
+    record = {"motion": np.asarray(spec["motions"].index(name)), "motion_speed": np.asarray(speed),
+              "motion_amplitude": np.asarray(amplitude)}
+    return motion.repeated(cycles), record
+
+
+def clip_fabric(manifest: Manifest, unit: int):
+    classes = FabricClasses.from_dict(manifest.spec["fabric_classes"])
+    c = unit % classes.count
+    fabric = classes.sample_fabric(c, np.random.default_rng([manifest.seed, unit, 17]))
+    return c, fabric
+
+
+def prepare_clips(manifest: Manifest, folder) -> dict[tuple[str, str], Reference]:
+    return build_references(manifest, folder, progress=True)
+
+
+def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: int) -> dict[str, np.ndarray]:
+    """One clip as a flat dict of arrays (see the module docstring)."""
+    from tryon.sim.runner import simulate
+
+    t0 = time.perf_counter()
+    spec = manifest.spec
+    body = sample_body(manifest.seed, unit, BodyRanges.from_dict(spec["ranges"]))
+    shape = body.shape()
+    m = drafting_measurements(shape)
+    first = SIZES.index(spec["sizes"][0])
+    size = spec["sizes"][int(np.clip(own_size_index(spec["garment"], body.gender, m) - first, 0, len(spec["sizes"]) - 1))]
+    ref = refs[(body.gender, size)]
+    c, fabric = clip_fabric(manifest, unit)
+    motion, motion_record = clip_motion(manifest, unit)
+    start_pose = drape_pose(shape, spec["garment"])
+    target = posed_body(shape, start_pose, m["crotch_height"])
+    n, frames = len(ref.garment.vertices), spec["frames"]
+    data = fabric.to_arcsim_dict()
+    out = {"body": np.asarray(body.index), "size": np.asarray(spec["sizes"].index(size)),
+           "gender": np.asarray(GENDER_CODE[body.gender]), "height_cm": np.asarray(body.height_cm),
+           "bmi": np.asarray(body.bmi), "shape_params": shape_vector(body.params),
+           "split": np.asarray(split_of(manifest, body.index, body.bmi)), "fabric_class": np.asarray(c),
+           "fabric_features": fabric_features(fabric), "fabric_density": np.asarray(float(fabric.density)),
+           "fabric_stretching": np.asarray(data["stretching"]), "fabric_bending": np.asarray(data["bending"]),
+           **motion_record,
+           "x": np.full((frames, n, 3), np.nan, np.float32), "x_rest": np.full((n, 3), np.nan, np.float32),
+           "times": np.zeros(frames), "ok": np.asarray(False), "error": np.asarray(""), "drape_steps": np.asarray(0),
+           "motion_steps": np.asarray(0), "max_strain": np.asarray(np.nan)}
+    req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=fabric.to_arcsim_dict(),
+                       edge_length=spec["edge_length"], **spec["drape"], **DATASET_DRAPE)
+    try:
+        x_rest, _, _, stats, _ = simulate_drape(req, ref.garment, ref.pose(), target, progress=False)
+        out.update({"x_rest": x_rest.astype(np.float32), "drape_steps": np.asarray(int(stats["steps"]))})
+        g = ref.garment
+        duration = BLEND_TIME + (frames - 1) / spec["fps"]
+        scene = garment_motion_scene(shape, start_pose, GarmentAtRest(x_rest, g.uv, g.faces, g.corner_uv, spec["garment"]),
+                                     fabric, motion, req.thickness, req.friction, spec["dt"], duration)
+        scene.frame_time = spec["dt"]  # every step kept: the clip's frame times fall on steps exactly
+        result = simulate(scene, progress=False)
+    except TryonError as exc:  # recorded as failed; the dataset goes on
+        out.update({"error": np.asarray(str(exc)[:500]), "wall_s": np.asarray(time.perf_counter() - t0)})
+        return out
+    x, t = clip_frames(np.asarray(result.positions), np.asarray(result.times), frames, spec["fps"])
+    out.update({"x": x.astype(np.float32), "times": t, "ok": np.asarray(bool(np.isfinite(x).all())),
+                "motion_steps": np.asarray(int(result.summary["steps"])),
+                "max_strain": np.asarray(float(result.summary["max_strain"])),
+                "wall_s": np.asarray(time.perf_counter() - t0)})
+    return out
+
+
+def clip_frames(positions: np.ndarray, times: np.ndarray, frames: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The `frames` recorded frames nearest BLEND_TIME + k / fps (the clip after the blend)."""
+    want = BLEND_TIME + np.arange(frames) / fps
+    idx = np.abs(times[None, :] - want[:, None]).argmin(axis=1)
+    if np.abs(times[idx] - want).max() > 0.5 / fps:
+        raise TryonError(f"the simulation recorded no frame near {want[np.abs(times[idx] - want).argmax()]:.2f} s")
+    return positions[idx], times[idx]
+
+
+def make_clip_dataset(spec: ClipDatasetSpec, out, workers: int = 1, ray_address: str | None = None,
+                      force: bool = False, progress: bool = True, limit: int | None = None):
+    from tryon.dataset.generate import open_dataset, run_generator
+    from tryon.dataset.store import software_version
+
+    store = open_dataset(out, spec.manifest(software_version()), force=force)
+    report = run_generator(store, prepare_clips, clip_unit, workers=workers, ray_address=ray_address,
+                           progress=progress, limit=limit)
+    return store, report
+
+

@@ -1,0 +1,62 @@
+"""Clip datasets for fabric from video, tiny: a garment of a drawn fabric class follows a
+moving body; the clip holds the frames after the blend, the class and the motion drawn."""
+
+import numpy as np
+import pytest
+
+from tryon.body.motion import load_motion
+from tryon.cli import main
+from tryon.dataset import BodyRanges
+from tryon.dataset.clips import ClipDatasetSpec, clip_fabric, clip_motion, make_clip_dataset, varied_motion
+from tryon.perceive.fabric_classes import FabricClasses
+
+pytestmark = [pytest.mark.anny, pytest.mark.slow]
+
+
+def _spec(count=2):
+    return ClipDatasetSpec(garment="tshirt", sizes=("S", "M", "L"), count=count, edge_length=0.04, frames=4, fps=5.0,
+                           shard_size=2, ranges=BodyRanges(genders=("female",), bmi=(20.0, 28.0)))
+
+
+def test_units_draw_every_class_in_turn_and_the_same_fabric_and_motion_each_run():
+    manifest = _spec(count=120).manifest("v")
+    classes = FabricClasses.from_dict(manifest.spec["fabric_classes"])
+    drawn = [clip_fabric(manifest, u) for u in range(classes.count)]
+    assert [c for c, _ in drawn] == list(range(classes.count))
+    assert all(classes.class_of(f) == c for c, f in drawn)
+    again_c, again = clip_fabric(manifest, 7)
+    assert again_c == 7 and np.allclose(again.parameters().numpy(), drawn[7][1].parameters().numpy())
+    m1, r1 = clip_motion(manifest, 3)
+    m2, r2 = clip_motion(manifest, 3)
+    assert r1 == r2 and m1.duration >= (manifest.spec["frames"] - 1) / manifest.spec["fps"]
+    speeds = {round(float(clip_motion(manifest, u)[1]["motion_speed"]), 3) for u in range(10)}
+    assert len(speeds) == 10
+
+
+def test_a_varied_motion_is_faster_and_wider():
+    walk = load_motion("walk")
+    fast = varied_motion(walk, 1.25, 0.8)
+    assert fast.duration == pytest.approx(walk.duration / 1.25)
+    assert np.allclose(fast.rotations, 0.8 * walk.rotations)
+
+
+def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
+    store, report = make_clip_dataset(_spec(), tmp_path / "clips", progress=False)
+    assert (report.made, report.failed) == (2, 0)
+    shard = np.load(next((tmp_path / "clips" / "shards").glob("*.npz")))
+    x, rest, t = shard["x"], shard["x_rest"], shard["times"]
+    assert x.shape[:2] == (2, 4) and x.shape[2:] == rest.shape[1:] and np.isfinite(x).all()
+    assert np.allclose(t, 0.5 + np.arange(4) / 5.0, atol=1e-6)
+    assert list(shard["fabric_class"]) == [0, 1]
+    # the garment moves with the body between frames, a few cm, not flung
+    step = np.linalg.norm(np.diff(x, axis=1), axis=3).max(axis=2)
+    assert (step > 0.002).all() and (step < 0.3).all()
+    assert (shard["max_strain"] < 0.6).all()
+
+
+def test_clip_command_checks_arguments_before_any_work(tmp_path, capsys):
+    assert main(["dataset", "clips", "--frames", "1", "--out", str(tmp_path / "c")]) == 2
+    assert "1 frames at 5.0 fps" in capsys.readouterr().err
+    assert main(["dataset", "clips", "--motions", "dance", "--out", str(tmp_path / "c")]) == 2
+    assert "motions ['dance']" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
