@@ -61,9 +61,11 @@ def test_edges_sit_at_equal_steps_of_deformation():
     assert np.allclose(equal_deformation_edges(falling, 4), 2.0 + np.log10(100.0 / levels) / 0.3, atol=1e-6)
     # the stiffer, the less a step of stiffness shows: the stiff bins are wide
     assert np.all(np.diff(np.diff(equal_deformation_edges(falling, 4))) > 0)
-    # a jump in the measured curve (a drape test's folds changing in number) does not crowd the bins
+    # a jump in the measured curve (a drape test's folds changing in number) neither crowds
+    # the bins into it nor leaves one wide flat bin at the soft end
     jump = Response("bending", s.tolist(), [70, 69, 68, 67, 66, 65, 64, 50, 49], 0.0)
-    assert np.diff(equal_deformation_edges(jump, 4)).min() > 0.2
+    widths = np.diff(equal_deformation_edges(jump, 4))
+    assert widths.min() > 0.3 and widths.max() < 0.7
     with pytest.raises(ValueError, match="deforms the same"):
         equal_deformation_edges(Response("bending", s.tolist(), [5.0] * 9, 0.0), 3)
 

@@ -149,17 +149,20 @@ def measure_response(axis: str, samples: int = 9, progress: bool = True) -> Resp
 
 
 def smoothed_response(response: Response, points: int = 401) -> tuple[np.ndarray, np.ndarray]:
-    """The response on a fine grid: a least-squares quadratic in log10 stiffness fitted to
-    the log of the deformation, made monotone (falling). A drape test's fold count changes
-    in steps (the stiffest fabrics of the range fall in fewer, larger folds), which a
-    binning by the raw curve would crowd bins into; the quadratic follows the trend."""
+    """The response on a fine grid: a power law in stiffness (a line in log deformation
+    against log stiffness), bent by a quadratic term where the data ask for it and the
+    bent curve still falls over the whole range. A drape test's fold count changes in
+    steps (the stiffest fabrics of the range fall in fewer, larger folds); binning by the
+    raw curve would crowd bins into such a step, and a quadratic pulled by it turns back."""
     s = np.asarray(response.log10_stiffness)
     d = np.asarray(response.deformation)
     if np.any(d <= 0):
         raise ValueError(f"the {response.axis} test's deformations must be positive, got {d.min():.3g}")
     fine = np.linspace(s[0], s[-1], points)
-    fitted = np.exp(np.polyval(np.polyfit(s, np.log(d), 2), fine))
-    return fine, np.minimum.accumulate(fitted)
+    bent = np.polyfit(s, np.log(d), 2)
+    slope = np.polyval(np.polyder(bent), fine)
+    coeffs = bent if np.all(slope < 0) else np.polyfit(s, np.log(d), 1)
+    return fine, np.minimum.accumulate(np.exp(np.polyval(coeffs, fine)))
 
 
 def equal_deformation_edges(response: Response, bins: int) -> list[float]:
