@@ -52,6 +52,14 @@ def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
     step = np.linalg.norm(np.diff(x, axis=1), axis=3).max(axis=2)
     assert (step > 0.002).all() and (step < 0.3).all()
     assert (shard["max_strain"] < 0.6).all()
+    # filmed: the person finder sees the person in (nearly) every frame; the garment covers
+    # part of the person's mask, and its mask moves between frames
+    assert shard["frame_found"].mean() >= 0.75
+    person = np.unpackbits(shard["frame_mask_bits"], axis=-1).reshape(2, 4, 128, 128).astype(bool)
+    garment = np.unpackbits(shard["frame_garment_mask_bits"], axis=-1).reshape(2, 4, 64, 64).astype(bool)
+    share = garment.mean(axis=(2, 3)) / person[:, :, ::2, ::2].mean(axis=(2, 3))
+    assert ((share > 0.1) & (share < 0.8)).all(), share
+    assert (garment[:, 1:] != garment[:, :-1]).any(axis=(2, 3)).all()
 
 
 def test_clip_command_checks_arguments_before_any_work(tmp_path, capsys):

@@ -14,8 +14,10 @@ The clip is `frames` frames at `fps` after the blend (the chapter's clips: 25 at
 
 Stored per clip: the garment's vertices per frame (float32, metres) and at rest before
 the motion, the frame times, the fabric class with the fabric's features and data, the
-body (shape vector, gender, stature, BMI), the motion (name, speed, amplitude, start),
-the size, the split, and how the simulation went.
+body (shape vector, gender, stature, BMI), the motion (name, speed, amplitude), the size,
+the split, how the simulation went, and the clip filmed (`film_clip`): per frame what the
+person finder sees (mask and keypoints in the crop around the person) and the garment's
+true mask, with the camera.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 from tryon.body.motion import BLEND_TIME, BUILTIN_MOTIONS, load_motion
 from tryon.body.motion_data import BodyMotion
 from tryon.body.measure import drafting_measurements
-from tryon.body.pose import posed_body
+from tryon.body.pose import BodyPose, posed_body
 from tryon.dataset.bodies import BodyRanges, sample_body
 from tryon.dataset.drapes import (
     DATASET_DRAPE, GENDER_CODE, Reference, build_references, own_size_index, shape_vector, split_of,
@@ -179,10 +181,65 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
         out.update({"error": np.asarray(str(exc)[:500]), "wall_s": np.asarray(time.perf_counter() - t0)})
         return out
     x, t = clip_frames(np.asarray(result.positions), np.asarray(result.times), frames, spec["fps"])
+    bodies = np.stack([scene.model.obstacles.vertices_at(float(ti)) for ti in t])
+    rng = np.random.default_rng([manifest.seed, unit, 23])
+    out.update(film_clip(posed_body(shape, start_pose), bodies, x, g.faces, rng))
     out.update({"x": x.astype(np.float32), "times": t, "ok": np.asarray(bool(np.isfinite(x).all())),
                 "motion_steps": np.asarray(int(result.summary["steps"])),
                 "max_strain": np.asarray(float(result.summary["max_strain"])),
                 "wall_s": np.asarray(time.perf_counter() - t0)})
+    return out
+
+
+def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garment_faces: np.ndarray,
+              rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The clip filmed by one still camera (drawn as the photo datasets draw theirs, from
+    within 90 degrees of the front), the body in painted clothes and a skin tone, the
+    garment in one colour, on a wall-and-floor background; per frame what the person finder
+    (BlazePose, `tryon.perceive.person`) sees in the picture, cropped as the photo datasets
+    crop it, and the garment's true mask in the same crop."""
+    from tryon.dataset.photos import CROP, IMAGE_WH, TRUE_CROP, _background, _camera, _clothes_colours
+    from tryon.perceive.person import crop_box, crop_mask, detect_person
+    from tryon.render.offscreen import RenderMesh, render_meshes
+
+    w, h = IMAGE_WH
+    body_colours = _clothes_colours(start, rng)
+    cloth = np.clip(rng.uniform(0.05, 0.95, 3), 0.0, 1.0)
+    azimuth = float(rng.uniform(-90.0, 90.0))
+    cam = _camera(np.concatenate([bodies.reshape(-1, 3), garment_x.reshape(-1, 3)]), azimuth, rng)
+    wall = _background(rng, IMAGE_WH)
+    per_frame: dict[str, list] = {k: [] for k in ("found", "crop", "mask_bits", "garment_mask_bits", "keypoints",
+                                                  "visibility")}
+    for body_v, gx in zip(bodies, garment_x):
+        meshes = [RenderMesh(body_v, start.faces, vertex_colors=body_colours),
+                  RenderMesh(gx, garment_faces, color=tuple(cloth), two_sided=True)]
+        fg = render_meshes(meshes, w, h, cam, background=(1.0, 0.0, 1.0))
+        key = (fg[..., 0] > 250) & (fg[..., 1] < 5) & (fg[..., 2] > 250)
+        photo = np.where(key[..., None], wall, fg)
+        # the garment's pixels: where it is in front (drawn again in pure green, the body in blue)
+        ids = render_meshes([RenderMesh(body_v, start.faces, color=(0.0, 0.0, 1.0)),
+                             RenderMesh(gx, garment_faces, color=(0.0, 1.0, 0.0), two_sided=True)], w, h, cam,
+                            background=(0.0, 0.0, 0.0))
+        garment_mask = (ids[..., 1].astype(int) > ids[..., 2].astype(int) + 10).astype(np.float32)
+        p = detect_person(photo, "clip frame")
+        if p is not None:
+            box, mask, kp, vis = p.box, p.mask, p.keypoints, p.visibility
+        else:
+            ys, xs = np.nonzero(~key)
+            box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+            mask, kp, vis = np.zeros((h, w)), np.zeros((33, 2)), np.zeros(33)
+        crop = crop_box(box)
+        x0, y0, side = crop
+        per_frame["found"].append(p is not None)
+        per_frame["crop"].append(np.array(crop, np.float32))
+        per_frame["mask_bits"].append(np.packbits(crop_mask(mask, crop, CROP) > 0.5))
+        per_frame["garment_mask_bits"].append(np.packbits(crop_mask(garment_mask, crop, TRUE_CROP) > 0.5))
+        per_frame["keypoints"].append(((kp - [x0, y0]) / side).astype(np.float16))
+        per_frame["visibility"].append(np.asarray(vis, np.float16))
+    out = {f"frame_{k}": np.stack(v) for k, v in per_frame.items()}
+    out.update({"camera_azimuth_deg": np.float32(azimuth), "camera_fov_deg": np.float32(cam.fov_deg),
+                "camera_eye": cam.eye.astype(np.float32), "camera_target": cam.target.astype(np.float32),
+                "garment_colour": cloth.astype(np.float32)})
     return out
 
 
