@@ -60,6 +60,14 @@ def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
     share = garment.mean(axis=(2, 3)) / person[:, :, ::2, ::2].mean(axis=(2, 3))
     assert ((share > 0.1) & (share < 0.8)).all(), share
     assert (garment[:, 1:] != garment[:, :-1]).any(axis=(2, 3)).all()
+    # what the fabric classifier reads of it: masks, keypoints and each frame's garment code
+    from tryon.learn.fabric_video import clip_tensors
+    from tryon.learn.garment_codes import CodeConfig, GarmentCodes
+
+    codes = GarmentCodes(CodeConfig(cloud=128, reps=8, patch=8, code=12, width=16))
+    clips = clip_tensors([tmp_path / "clips"], codes)
+    assert clips.masks.shape == (2, 4, 128, 128) and clips.keypoints.shape == (2, 4, 99)
+    assert clips.codes.shape == (2, 4, 12) and list(clips.label) == [0, 1] and set(clips.garment) == {"tshirt"}
 
 
 def test_clip_command_checks_arguments_before_any_work(tmp_path, capsys):

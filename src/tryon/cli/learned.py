@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 
 def _cmd_train_drape(args: argparse.Namespace) -> int:
@@ -47,6 +48,47 @@ def _cmd_train_body_photos(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train_garment_codes(args: argparse.Namespace) -> int:
+    from tryon.errors import TryonError
+    from tryon.io.atomic import check_output_dir
+    from tryon.learn.train_garment_codes import MODEL, CodeTrainConfig, train_garment_codes
+
+    if args.epochs < 1 or args.batch < 1 or not args.lr > 0:
+        raise TryonError("--epochs and --batch must be at least 1 and --lr positive")
+    out = check_output_dir(args.out, force=args.force)
+    card = train_garment_codes(args.data, out, CodeTrainConfig(args.epochs, args.batch, args.lr, args.seed),
+                               progress=not args.quiet, force=args.force)
+    print(json.dumps({"model": str(out / MODEL), "drapes": card["drapes"], "test": card["test"]}, indent=1))
+    return 0
+
+
+def _cmd_train_fabric_video(args: argparse.Namespace) -> int:
+    from tryon.errors import TryonError
+    from tryon.io.atomic import check_output_dir
+    from tryon.learn.fabric_video import METHODS, clip_tensors
+    from tryon.learn.train_fabric_video import ClassifierTrainConfig, train_classifier
+    from tryon.learn.train_garment_codes import load_codes_model
+    from tryon.perceive.fabric_classes import default_classes
+
+    methods = list(METHODS) if args.method == "all" else [args.method]
+    if args.method != "all" and args.method not in METHODS:
+        raise TryonError(f"unknown method {args.method!r}; use all or one of {', '.join(METHODS)}")
+    if args.epochs < 1 or args.batch < 1 or not args.lr > 0:
+        raise TryonError("--epochs and --batch must be at least 1 and --lr positive")
+    out = check_output_dir(args.out, force=args.force)
+    codes, _ = load_codes_model(args.codes)
+    clips = clip_tensors(args.data, codes, args.seed)
+    classes = default_classes()
+    results = {}
+    for method in methods:
+        card = train_classifier(clips, Path(out) / method, method, ClassifierTrainConfig(args.epochs, args.batch, args.lr,
+                                                                                         args.seed),
+                                classes.count, classes.distance, [str(d) for d in args.data], not args.quiet, args.force)
+        results[method] = card["test"]
+    print(json.dumps({"clips": card["clips"], "chance_top1": round(1 / classes.count, 4), "test": results}, indent=1))
+    return 0
+
+
 def _cmd_train_body_fit(args: argparse.Namespace) -> int:
     from tryon.body.amortised import MODEL_PATH
     from tryon.body.amortised_build import build, train
@@ -72,6 +114,9 @@ def _training_options(p: argparse.ArgumentParser, epochs: int, batch: int, lr: f
     p.add_argument("--force", action="store_true", help="use an existing --out folder tryon did not write")
 
 
+SHIPPED_CODES = Path(__file__).resolve().parents[1] / "learn" / "models" / "garment-codes.npz"
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register `tryon train ...` on the `tryon` parser."""
     t = sub.add_parser("train", help="train a learned model (checkpoints every epoch, resumes)")
@@ -88,6 +133,21 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--out", required=True, help="model folder: model.npz, model_card.json, MODEL_CARD.md, checkpoint.pt")
     _training_options(b, epochs=60, batch=16, lr=1e-3)
     b.set_defaults(func=_cmd_train_body_photos)
+    g = kinds.add_parser("garment-codes", help="fabric from video: the garment autoencoder (one latent space for "
+                                               "every garment) on drape datasets")
+    g.add_argument("--data", required=True, nargs="+", metavar="DIR", help="drape dataset folders, any garments")
+    g.add_argument("--out", required=True, help="model folder: garment-codes.npz, model_card.json, checkpoint.pt")
+    _training_options(g, epochs=40, batch=32, lr=1e-3)
+    g.set_defaults(func=_cmd_train_garment_codes)
+    v = kinds.add_parser("fabric-video", help="fabric from video: the fabric class from clips (tryon dataset clips), "
+                                              "one method or every ablation")
+    v.add_argument("--data", required=True, nargs="+", metavar="DIR", help="clip dataset folders")
+    v.add_argument("--codes", default=str(SHIPPED_CODES), help="garment codes model (tryon train garment-codes)")
+    v.add_argument("--method", default="image+garment-temporal",
+                   help="image+garment, image-only or garment-only, each -temporal or -frame; or all")
+    v.add_argument("--out", required=True, help="model folder (one subfolder per method)")
+    _training_options(v, epochs=60, batch=16, lr=1e-3)
+    v.set_defaults(func=_cmd_train_fabric_video)
     f = kinds.add_parser("body-fit", help="the amortised body fit: full fits of people across the range "
                                           "(resumable), then the network from measurements to Anny's unknowns")
     f.add_argument("--data", default="data/body-fits-v1", help="folder of the fits (made where missing)")
