@@ -26,19 +26,21 @@ fig, ax = plt.subplots(len(pairs) + 1, 5, figsize=(12, 2.8 * (len(pairs) + 1)))
 def show(a, p, title, colour="C0"):
     a.scatter(p[:, 0], p[:, 2], s=0.6, c=colour)
     a.set_aspect("equal")
-    a.set_xlim(-0.45, 0.45)
+    a.set_xlim(-0.65, 0.65)
     a.set_ylim(-0.6, 0.6)
     a.set_xticks([])
     a.set_yticks([])
     a.set_title(title, fontsize=8)
 
 
+for a in ax[0, len(firsts):]:
+    a.axis("off")
 with torch.no_grad():
     for k, (g, row) in enumerate(list(firsts.items())[:5]):
         x = torch.from_numpy(clouds.points[row:row + 1])
         _, rec = model.decode(model.encode(x))
         show(ax[0, k], clouds.points[row], "")
-        show(ax[0, k], rec[0].numpy(), f"{g}: input (blue), decoded (orange)", "C1")
+        show(ax[0, k], rec[0].numpy(), f"{g}: held out (blue), decoded (orange)", "C1")
     for i, (a, b) in enumerate(pairs, start=1):
         za, zb = (model.encode(torch.from_numpy(clouds.points[firsts[g]:firsts[g] + 1])) for g in (a, b))
         for k, t in enumerate(steps):
