@@ -80,3 +80,16 @@ def test_training_learns_the_shapes_resumes_and_writes_the_model(tmp_path):
                               progress=False)
     straight = [h["val_chamfer_cm"] for h in card["history"]]
     assert np.allclose([h["val_chamfer_cm"] for h in resumed["history"]], straight, rtol=1e-5)
+
+
+def test_the_shipped_model_loads_and_codes_a_garment():
+    from tryon.cli.learned import SHIPPED_CODES
+
+    model, card = load_codes_model(SHIPPED_CODES)
+    assert card["test"]["chamfer_cm"] < 3.0 and card["drapes"]["train"] > 100
+    x, faces = _tube(0.25, 0.6, flare=0.1)
+    cloud = torch.from_numpy(centred_cloud(x, faces, np.random.default_rng(0), model.config.cloud))[None]
+    with torch.no_grad():
+        code = model.encode(cloud)
+        _, decoded = model.decode(code)
+    assert code.shape == (1, model.config.code) and torch.isfinite(decoded).all()
