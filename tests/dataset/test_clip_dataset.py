@@ -68,6 +68,17 @@ def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
     clips = clip_tensors([tmp_path / "clips"], codes)
     assert clips.masks.shape == (2, 4, 128, 128) and clips.keypoints.shape == (2, 4, 99)
     assert clips.codes.shape == (2, 4, 12) and list(clips.label) == [0, 1] and set(clips.garment) == {"tshirt"}
+    # a size that could not be dressed: its clips fail, naming why, with the arrays of any clip
+    from tryon.dataset.clips import clip_unit, prepare_clips
+    from tryon.dataset.store import Manifest
+
+    manifest = Manifest.read(tmp_path / "clips")
+    refs = prepare_clips(manifest, tmp_path / "clips")
+    undressed = {k: (r if k == ("female", "XS") else "seams still open") for k, r in refs.items()}
+    failed = clip_unit(manifest, {**undressed, ("female", "XS"): refs[("female", "S")]}, 0)
+    assert not failed["ok"] and "could not be dressed: seams still open" in str(failed["error"])
+    assert {k: np.shape(v) for k, v in failed.items() if k != "unit"} == \
+        {k: shard[k].shape[1:] for k in shard.files if k != "unit"}
 
 
 def test_clip_command_checks_arguments_before_any_work(tmp_path, capsys):

@@ -22,6 +22,7 @@ true mask, with the camera.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 
@@ -35,7 +36,7 @@ from tryon.dataset.bodies import BodyRanges, sample_body
 from tryon.dataset.drapes import (
     DATASET_DRAPE, GENDER_CODE, Reference, build_references, own_size_index, shape_vector, split_of,
 )
-from tryon.dataset.store import Manifest
+from tryon.dataset.store import DatasetError, Manifest
 from tryon.drape.animate import GarmentAtRest, garment_motion_scene
 from tryon.drape.pipeline import DrapeRequest, drape_pose, simulate_drape
 from tryon.errors import TryonError
@@ -135,7 +136,21 @@ def clip_fabric(manifest: Manifest, unit: int):
 
 
 def prepare_clips(manifest: Manifest, folder) -> dict[tuple[str, str], Reference]:
-    return build_references(manifest, folder, progress=True)
+    """The references of every size that dresses; a size whose garment cannot be dressed at
+    the dataset's edge length is left out (its clips are recorded as failed, naming why)."""
+    refs: dict[tuple[str, str], Reference] = {}
+    for size in manifest.spec["sizes"]:
+        one = copy.deepcopy(manifest)
+        one.spec["sizes"] = [size]
+        try:
+            refs.update(build_references(one, folder, progress=True))
+        except TryonError as exc:
+            print(f"size {size} left out of the clips: {exc}", flush=True)
+            refs.update({(g, size): str(exc) for g in BodyRanges.from_dict(manifest.spec["ranges"]).genders})
+    if all(isinstance(r, str) for r in refs.values()):
+        raise DatasetError(f"no size of the {manifest.spec['garment']} could be dressed at "
+                           f"{manifest.spec['edge_length']} m edges; try a shorter --edge-length")
+    return refs
 
 
 def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: int) -> dict[str, np.ndarray]:
@@ -154,7 +169,9 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
     motion, motion_record = clip_motion(manifest, unit)
     start_pose = drape_pose(shape, spec["garment"])
     target = posed_body(shape, start_pose, m["crotch_height"])
-    n, frames = len(ref.garment.vertices), spec["frames"]
+    # every sample holds the same arrays (a shard stacks them): a failed one holds NaN / zeros
+    n = next(len(r.garment.vertices) for r in refs.values() if not isinstance(r, str))
+    frames = spec["frames"]
     data = fabric.to_arcsim_dict()
     out = {"body": np.asarray(body.index), "size": np.asarray(spec["sizes"].index(size)),
            "gender": np.asarray(GENDER_CODE[body.gender]), "height_cm": np.asarray(body.height_cm),
@@ -165,7 +182,11 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
            **motion_record,
            "x": np.full((frames, n, 3), np.nan, np.float32), "x_rest": np.full((n, 3), np.nan, np.float32),
            "times": np.zeros(frames), "ok": np.asarray(False), "error": np.asarray(""), "drape_steps": np.asarray(0),
-           "motion_steps": np.asarray(0), "max_strain": np.asarray(np.nan)}
+           "motion_steps": np.asarray(0), "max_strain": np.asarray(np.nan), **unfilmed(frames)}
+    if isinstance(ref, str):  # the size could not be dressed (prepare_clips)
+        out.update({"error": np.asarray(f"the {size} garment could not be dressed: {ref}"[:500]),
+                    "wall_s": np.asarray(time.perf_counter() - t0)})
+        return out
     req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=fabric.to_arcsim_dict(),
                        edge_length=spec["edge_length"], **spec["drape"], **DATASET_DRAPE)
     try:
@@ -241,6 +262,18 @@ def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garmen
                 "camera_eye": cam.eye.astype(np.float32), "camera_target": cam.target.astype(np.float32),
                 "garment_colour": cloth.astype(np.float32)})
     return out
+
+
+def unfilmed(frames: int) -> dict[str, np.ndarray]:
+    """What `film_clip` stores, for a clip that was not filmed (zeros; nothing found)."""
+    from tryon.dataset.photos import CROP, TRUE_CROP
+
+    return {"frame_found": np.zeros(frames, bool), "frame_crop": np.zeros((frames, 3), np.float32),
+            "frame_mask_bits": np.zeros((frames, CROP * CROP // 8), np.uint8),
+            "frame_garment_mask_bits": np.zeros((frames, TRUE_CROP * TRUE_CROP // 8), np.uint8),
+            "frame_keypoints": np.zeros((frames, 33, 2), np.float16), "frame_visibility": np.zeros((frames, 33), np.float16),
+            "camera_azimuth_deg": np.float32(0), "camera_fov_deg": np.float32(0), "camera_eye": np.zeros(3, np.float32),
+            "camera_target": np.zeros(3, np.float32), "garment_colour": np.zeros(3, np.float32)}
 
 
 def clip_frames(positions: np.ndarray, times: np.ndarray, frames: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
