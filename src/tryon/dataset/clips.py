@@ -58,7 +58,7 @@ class ClipDatasetSpec:
     garment: str = "tshirt"
     sizes: tuple[str, ...] = ("XS", "S", "M", "L", "XL", "XXL")
     count: int = 540
-    edge_length: float = 0.025
+    edge_length: float = 0.02
     frames: int = 25
     fps: float = 5.0
     dt: float = 0.01
