@@ -187,7 +187,7 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
         out.update({"error": np.asarray(f"the {size} garment could not be dressed: {ref}"[:500]),
                     "wall_s": np.asarray(time.perf_counter() - t0)})
         return out
-    req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=fabric.to_arcsim_dict(),
+    req = DrapeRequest(body.measurements(), garment=spec["garment"], size=size, fabric=data,
                        edge_length=spec["edge_length"], **spec["drape"], **DATASET_DRAPE)
     try:
         x_rest, _, _, stats, _ = simulate_drape(req, ref.garment, ref.pose(), target, progress=False)

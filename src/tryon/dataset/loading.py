@@ -60,14 +60,20 @@ def load_drape_dataset(folder: str | Path) -> DrapeDataset:
         raise DatasetError(f"{folder} holds a {manifest.kind!r} dataset, not drapes")
     store = ShardStore(folder, manifest)
     arrays = store.load()
+    refs = reference_garments(folder)
+    faces = next(iter(refs.values())).faces
+    return DrapeDataset(manifest, arrays, faces, refs)
+
+
+def reference_garments(folder: str | Path) -> dict[tuple[str, str], DressedGarment]:
+    """The dataset's dressed garments per (gender, size): every sample shares their mesh."""
     refs = {}
-    for p in sorted((folder / "references").glob("*-*.npz")):
+    for p in sorted((Path(folder) / "references").glob("*-*.npz")):
         gender, size = p.stem.split("-", 1)
         refs[(gender, size)] = DressedGarment.load(p)
     if not refs:
         raise DatasetError(f"{folder}/references holds no reference garments; the dataset is incomplete")
-    faces = next(iter(refs.values())).faces
-    return DrapeDataset(manifest, arrays, faces, refs)
+    return refs
 
 
 UNIT_STRIDE = 100_000_000  # the k-th merged dataset's units (and bodies) are offset by k times this

@@ -52,6 +52,7 @@ def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipT
     """The ok clips of clip datasets (`tryon dataset clips`) with every frame's garment
     coded by `codes_model` (a `GarmentCodes`; each frame's cloud drawn from the seed)."""
     from tryon.dataset.clips import KIND
+    from tryon.dataset.loading import reference_garments
     from tryon.dataset.store import DatasetError, Manifest, ShardStore, sample_rows
     from tryon.learn.garment_codes import centred_cloud
 
@@ -63,11 +64,7 @@ def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipT
         if manifest.kind != KIND:
             raise DatasetError(f"{folder} holds a {manifest.kind!r} dataset, not clips")
         arrays = ShardStore(folder, manifest).load()
-        refs = sorted((folder / "references").glob("*-*.npz"))
-        if not refs:
-            raise DatasetError(f"{folder}/references holds no reference garments; the dataset is incomplete")
-        with np.load(refs[0], allow_pickle=False) as z:
-            faces = z["faces"]
+        faces = next(iter(reference_garments(folder).values())).faces
         for r in sample_rows(arrays):
             t = arrays["x"][r].shape[0]
             bits = np.unpackbits(arrays["frame_mask_bits"][r], axis=-1)[:, :MASK * MASK]

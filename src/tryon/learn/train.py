@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,7 @@ from tryon.io.atomic import atomic_write
 from tryon.learn.data import TrainingSet, dataset_key, model_parts, training_set
 from tryon.learn.losses import DrapeLoss, LossWeights
 from tryon.learn.model import DrapeModel, timestamp
-from tryon.learn.network import DrapeNet, NetConfig
+from tryon.learn.network import NetConfig
 
 CHECKPOINT = "checkpoint.pt"
 

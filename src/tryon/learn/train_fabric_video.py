@@ -9,19 +9,17 @@ within-one-bin accuracy.
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
+from tryon.learn.checkpoints import CHECKPOINT, EpochLoop, load_weights, save_weights
 from tryon.learn.fabric_video import ClipTensors, FabricFromClip, accuracy, batch
 
-CHECKPOINT = "checkpoint.pt"
 MODEL = "fabric-video.npz"
 
 
@@ -37,11 +35,8 @@ class ClassifierTrainConfig:
 
 
 def save_classifier(model: FabricFromClip, path: Path, card: dict) -> Path:
-    arrays = {f"param/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
     meta = {"method": model.method, "classes": model.classes, "code": _code_width(model)}
-    with atomic_write(path, "wb") as fh:
-        np.savez(fh, meta=np.asarray(json.dumps(meta)), card=np.asarray(json.dumps(card)), **arrays)
-    return path
+    return save_weights(path, model, meta=meta, card=card)
 
 
 def _code_width(model: FabricFromClip) -> int:
@@ -49,13 +44,12 @@ def _code_width(model: FabricFromClip) -> int:
 
 
 def load_classifier(path: str | Path) -> tuple[FabricFromClip, dict]:
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(str(z["meta"]))
-        model = FabricFromClip(meta["method"], meta["classes"], meta["code"])
-        model.load_state_dict({k[len("param/"):]: torch.from_numpy(z[k]) for k in z.files if k.startswith("param/")})
-        card = json.loads(str(z["card"]))
+    state, fields = load_weights(path)
+    meta = fields["meta"]
+    model = FabricFromClip(meta["method"], meta["classes"], meta["code"])
+    model.load_state_dict(state)
     model.eval()
-    return model, card
+    return model, fields["card"]
 
 
 def train_classifier(clips: ClipTensors, out: str | Path, method: str, config: ClassifierTrainConfig | None = None,
@@ -72,51 +66,26 @@ def train_classifier(clips: ClipTensors, out: str | Path, method: str, config: C
     claim_work_dir(out, resume=(out / CHECKPOINT).exists() and is_owned(out), force=force)
     torch.manual_seed(config.seed)
     model = FabricFromClip(method, classes, clips.codes.shape[-1])
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
-    start, best, history = 0, -1.0, []
-    ckpt = out / CHECKPOINT
-    if ckpt.exists():
-        state = torch.load(ckpt, weights_only=True)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        start, best, history = int(state["epoch"]), float(state["best"]), json.loads(state["history"])
     val_rows = clips.rows("val") if len(clips.rows("val")) else train
-    rng = np.random.default_rng([config.seed, 2])
-    for _ in range(start):  # replay the shuffles of the epochs done, so a resumed run repeats them
-        rng.permutation(train)
-    t0 = time.perf_counter()
-    for epoch in tqdm(range(start, config.epochs), desc=f"fabric from video ({method})", initial=start,
-                      total=config.epochs, disable=not progress):
-        model.train()
-        order = rng.permutation(train)
-        losses = []
-        for i in range(0, len(order), config.batch):
-            masks, keypoints, codes, label = batch(clips, order[i:i + config.batch])
-            loss = nn_loss(model(masks, keypoints, codes), label)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(loss.item())
-        model.eval()
-        val = accuracy(model, clips, val_rows)
-        history.append({"epoch": epoch + 1, "train_loss": float(np.mean(losses)), "val_top1": val["top1"]})
-        if val["top1"] > best:
-            best = val["top1"]
-            save_classifier(model, out / MODEL, {})
-        torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "epoch": epoch + 1, "best": best,
-                    "history": json.dumps(history)}, ckpt)
+
+    def step(rows: np.ndarray) -> torch.Tensor:
+        masks, keypoints, codes, label = batch(clips, rows)
+        return torch.nn.functional.cross_entropy(model(masks, keypoints, codes), label)
+
+    loop = EpochLoop(config.epochs, config.batch, config.seed, higher_is_better=True,
+                     desc=f"fabric from video ({method})", score_name="val_top1")
+    loop.run(out, model, torch.optim.Adam(model.parameters(), lr=config.lr), train, step,
+             validate=lambda: accuracy(model, clips, val_rows)["top1"],
+             keep_best=lambda: save_classifier(model, out / MODEL, {}), progress=progress)
     kept, _ = load_classifier(out / MODEL)
     card = {"model": f"fabric class from a clip: {method} (tryon.learn.fabric_video)", "method": method,
             "classes": classes, "training": config.to_dict(), "data": data or [],
             "clips": {s: int(len(clips.rows(s))) for s in ("train", "val", "test")},
-            "chance_top1": 1.0 / classes, "best_val_top1": best,
-            "test": accuracy(kept, clips, clips.rows("test"), bin_distance), "history": history,
-            "seconds_this_run": time.perf_counter() - t0}
+            "chance_top1": 1.0 / classes, "best_val_top1": loop.best,
+            "test": accuracy(kept, clips, clips.rows("test"), bin_distance), "history": loop.history,
+            "seconds_this_run": loop.seconds}
     save_classifier(kept, out / MODEL, card)
     with atomic_write(out / "model_card.json", "w") as fh:
         fh.write(json.dumps(card, indent=1))
     return card
 
-
-def nn_loss(scores: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
-    return torch.nn.functional.cross_entropy(scores, label)

@@ -10,19 +10,17 @@ kept, and a model card with the data and the held-out Chamfer distance per garme
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
+from tryon.learn.checkpoints import CHECKPOINT, EpochLoop, load_weights, save_weights
 from tryon.learn.garment_codes import CodeConfig, GarmentCodes, centred_cloud
 
-CHECKPOINT = "checkpoint.pt"
 MODEL = "garment-codes.npz"
 
 
@@ -66,20 +64,15 @@ def garment_clouds(folders: list[str | Path], seed: int = 0, cloud: int | None =
 
 
 def save_codes_model(model: GarmentCodes, path: Path, card: dict) -> Path:
-    arrays = {f"param/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
-    with atomic_write(path, "wb") as fh:
-        np.savez(fh, config=np.asarray(json.dumps(model.config.to_dict())), card=np.asarray(json.dumps(card)), **arrays)
-    return path
+    return save_weights(path, model, config=model.config.to_dict(), card=card)
 
 
 def load_codes_model(path: str | Path) -> tuple[GarmentCodes, dict]:
-    with np.load(path, allow_pickle=False) as z:
-        model = GarmentCodes(CodeConfig(**json.loads(str(z["config"]))))
-        state = {k[len("param/"):]: torch.from_numpy(z[k]) for k in z.files if k.startswith("param/")}
-        card = json.loads(str(z["card"]))
+    state, fields = load_weights(path)
+    model = GarmentCodes(CodeConfig(**fields["config"]))
     model.load_state_dict(state)
     model.eval()
-    return model, card
+    return model, fields["card"]
 
 
 def evaluate(model: GarmentCodes, clouds: Clouds, split: str) -> dict:
@@ -118,45 +111,21 @@ def train_on_clouds(clouds: Clouds, out: str | Path, config: CodeTrainConfig | N
     claim_work_dir(out, resume=(out / CHECKPOINT).exists() and is_owned(out), force=force)
     torch.manual_seed(config.seed)
     model = GarmentCodes(model_config)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
-    start, best, history = 0, float("inf"), []
-    ckpt = out / CHECKPOINT
-    if ckpt.exists():
-        state = torch.load(ckpt, weights_only=True)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        start, best, history = int(state["epoch"]), float(state["best"]), json.loads(state["history"])
-    rng = np.random.default_rng([config.seed, 1])
-    for _ in range(start):  # the shuffles of the epochs already done, so a resumed run repeats them
-        rng.permutation(train)
-    t0 = time.perf_counter()
-    for epoch in tqdm(range(start, config.epochs), desc="garment codes", initial=start, total=config.epochs,
-                      disable=not progress):
-        model.train()
-        order = rng.permutation(train)
-        losses = []
-        for i in range(0, len(order), config.batch):
-            loss, _ = model.loss(torch.from_numpy(clouds.points[order[i:i + config.batch]]))
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(loss.item())
-        model.eval()
-        val = evaluate(model, clouds, "val" if (clouds.split == "val").any() else "train")
-        history.append({"epoch": epoch + 1, "train_loss": float(np.mean(losses)), "val_chamfer_cm": val["chamfer_cm"]})
-        if val["chamfer_cm"] < best:
-            best = val["chamfer_cm"]
-            save_codes_model(model, out / MODEL, {})
-        torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "epoch": epoch + 1, "best": best,
-                    "history": json.dumps(history)}, ckpt)
+    loop = EpochLoop(config.epochs, config.batch, config.seed, higher_is_better=False, desc="garment codes",
+                     score_name="val_chamfer_cm")
+    val_split = "val" if (clouds.split == "val").any() else "train"
+    loop.run(out, model, torch.optim.Adam(model.parameters(), lr=config.lr), train,
+             step=lambda rows: model.loss(torch.from_numpy(clouds.points[rows]))[0],
+             validate=lambda: evaluate(model, clouds, val_split)["chamfer_cm"],
+             keep_best=lambda: save_codes_model(model, out / MODEL, {}), progress=progress)
     best_model, _ = load_codes_model(out / MODEL)
     card = {"model": "garment codes: two-level point-cloud autoencoder (tryon.learn.garment_codes)",
             "config": best_model.config.to_dict(), "training": config.to_dict(),
             "data": data or [],
             "drapes": {s: int((clouds.split == s).sum()) for s in ("train", "val", "test")},
-            "garments": sorted(set(clouds.garment.tolist())), "best_val_chamfer_cm": best,
-            "test": evaluate(best_model, clouds, "test"), "history": history,
-            "seconds_this_run": time.perf_counter() - t0}
+            "garments": sorted(set(clouds.garment.tolist())), "best_val_chamfer_cm": loop.best,
+            "test": evaluate(best_model, clouds, "test"), "history": loop.history,
+            "seconds_this_run": loop.seconds}
     save_codes_model(best_model, out / MODEL, card)
     with atomic_write(out / "model_card.json", "w") as fh:
         fh.write(json.dumps(card, indent=1))
