@@ -11,7 +11,7 @@ TRYON=${TRYON:-.venv/bin/tryon}
 CLIPS=${CLIPS:-1080}
 PASSES=${PASSES:-1000}
 GARMENTS=${GARMENTS:-"tshirt skirt dress trousers longsleeve"}
-EDGE=${EDGE:-0.02}
+EDGE=${EDGE:-0.03}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 export NUMBA_NUM_THREADS=${NUMBA_NUM_THREADS:-1}
 for pass in $(seq "$PASSES"); do

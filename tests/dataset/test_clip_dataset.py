@@ -7,7 +7,9 @@ import pytest
 from tryon.body.motion import load_motion
 from tryon.cli import main
 from tryon.dataset import BodyRanges
-from tryon.dataset.clips import ClipDatasetSpec, clip_fabric, clip_motion, make_clip_dataset, varied_motion
+from tryon.dataset.clips import (
+    ClipDatasetSpec, clip_fabric, clip_motion, frame_step, make_clip_dataset, varied_motion,
+)
 from tryon.perceive.fabric_classes import FabricClasses
 
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
@@ -40,6 +42,13 @@ def test_a_varied_motion_is_faster_and_wider():
     assert np.allclose(fast.rotations, 0.8 * walk.rotations)
 
 
+def test_frames_are_recorded_on_a_step_every_clip_frame_falls_on():
+    # blend 0.5 s, frames every 0.2 s: every 0.1 s holds them all
+    assert frame_step(0.01, 5.0) == 10 and frame_step(0.02, 5.0) == 5
+    assert frame_step(0.01, 4.0) == 25  # 0.5 s and 0.25 s: every 0.25 s
+    assert frame_step(0.03, 5.0) == 1   # 0.5 s is not a whole number of 0.03 s steps
+
+
 def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
     store, report = make_clip_dataset(_spec(), tmp_path / "clips", progress=False)
     assert (report.made, report.failed) == (2, 0)
@@ -60,6 +69,10 @@ def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
     share = garment.mean(axis=(2, 3)) / person[:, :, ::2, ::2].mean(axis=(2, 3))
     assert ((share > 0.1) & (share < 0.8)).all(), share
     assert (garment[:, 1:] != garment[:, :-1]).any(axis=(2, 3)).all()
+    # the garment found in the pictures (as on real frames) lies mostly on the true one
+    found = np.unpackbits(shard["frame_found_garment_bits"], axis=-1).reshape(2, 4, 64, 64).astype(bool)
+    iou = (found & garment).sum(axis=(2, 3)) / np.maximum((found | garment).sum(axis=(2, 3)), 1)
+    assert np.median(iou[shard["frame_found"]]) > 0.6, iou
     # what the fabric classifier reads of it: masks, keypoints and each frame's garment code
     from tryon.learn.fabric_video import clip_tensors
     from tryon.learn.garment_codes import CodeConfig, GarmentCodes

@@ -196,7 +196,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--sizes", nargs="+", default=["XS", "S", "M", "L", "XL", "XXL"],
                    help="standard sizes; each body wears its own (the nearest by the chart)")
     c.add_argument("--count", type=int, default=540, help="clips (the fabric classes take turns)")
-    c.add_argument("--edge-length", type=float, default=0.02, help="garment triangle edge length in metres")
+    c.add_argument("--edge-length", type=float, default=0.03, help="garment triangle edge length in metres")
     c.add_argument("--frames", type=int, default=25, help="frames per clip")
     c.add_argument("--fps", type=float, default=5.0, help="frames per second of the clip")
     c.add_argument("--motions", nargs="+", default=["walk", "arm-raise", "turn"], help="built-in motions to draw from")

@@ -58,7 +58,7 @@ class ClipDatasetSpec:
     garment: str = "tshirt"
     sizes: tuple[str, ...] = ("XS", "S", "M", "L", "XL", "XXL")
     count: int = 540
-    edge_length: float = 0.02
+    edge_length: float = 0.03
     frames: int = 25
     fps: float = 5.0
     dt: float = 0.01
@@ -196,7 +196,7 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
         duration = BLEND_TIME + (frames - 1) / spec["fps"]
         scene = garment_motion_scene(shape, start_pose, GarmentAtRest(x_rest, g.uv, g.faces, g.corner_uv, spec["garment"]),
                                      fabric, motion, req.thickness, req.friction, spec["dt"], duration)
-        scene.frame_time = spec["dt"]  # every step kept: the clip's frame times fall on steps exactly
+        scene.frame_time = frame_step(spec["dt"], spec["fps"]) * spec["dt"]
         result = simulate(scene, progress=False)
     except TryonError as exc:  # recorded as failed; the dataset goes on
         out.update({"error": np.asarray(str(exc)[:500]), "wall_s": np.asarray(time.perf_counter() - t0)})
@@ -204,7 +204,7 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
     x, t = clip_frames(np.asarray(result.positions), np.asarray(result.times), frames, spec["fps"])
     bodies = np.stack([scene.model.obstacles.vertices_at(float(ti)) for ti in t])
     rng = np.random.default_rng([manifest.seed, unit, 23])
-    out.update(film_clip(posed_body(shape, start_pose), bodies, x, g.faces, rng))
+    out.update(film_clip(posed_body(shape, start_pose), bodies, x, g.faces, spec["garment"], rng))
     out.update({"x": x.astype(np.float32), "times": t, "ok": np.asarray(bool(np.isfinite(x).all())),
                 "motion_steps": np.asarray(int(result.summary["steps"])),
                 "max_strain": np.asarray(float(result.summary["max_strain"])),
@@ -212,14 +212,16 @@ def clip_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: 
     return out
 
 
-def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garment_faces: np.ndarray,
+def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garment_faces: np.ndarray, garment: str,
               rng: np.random.Generator) -> dict[str, np.ndarray]:
     """The clip filmed by one still camera (drawn as the photo datasets draw theirs, from
     within 90 degrees of the front), the body in painted clothes and a skin tone, the
     garment in one colour, on a wall-and-floor background; per frame what the person finder
     (BlazePose, `tryon.perceive.person`) sees in the picture, cropped as the photo datasets
-    crop it, and the garment's true mask in the same crop."""
+    crop it, the garment's mask found in the picture (`tryon.perceive.garment_mask`, as on
+    real frames) and its true mask, both in the same crop."""
     from tryon.dataset.photos import CROP, IMAGE_WH, TRUE_CROP, _background, _camera, _clothes_colours
+    from tryon.perceive.garment_mask import garment_mask as find_garment
     from tryon.perceive.person import crop_box, crop_mask, detect_person
     from tryon.render.offscreen import RenderMesh, render_meshes
 
@@ -229,8 +231,8 @@ def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garmen
     azimuth = float(rng.uniform(-90.0, 90.0))
     cam = _camera(np.concatenate([bodies.reshape(-1, 3), garment_x.reshape(-1, 3)]), azimuth, rng)
     wall = _background(rng, IMAGE_WH)
-    per_frame: dict[str, list] = {k: [] for k in ("found", "crop", "mask_bits", "garment_mask_bits", "keypoints",
-                                                  "visibility")}
+    per_frame: dict[str, list] = {k: [] for k in ("found", "crop", "mask_bits", "garment_mask_bits",
+                                                  "found_garment_bits", "keypoints", "visibility")}
     for body_v, gx in zip(bodies, garment_x):
         meshes = [RenderMesh(body_v, start.faces, vertex_colors=body_colours),
                   RenderMesh(gx, garment_faces, color=tuple(cloth), two_sided=True)]
@@ -245,7 +247,9 @@ def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garmen
         p = detect_person(photo, "clip frame")
         if p is not None:
             box, mask, kp, vis = p.box, p.mask, p.keypoints, p.visibility
+            found_garment = find_garment(photo, mask, kp, garment).astype(np.float32)
         else:
+            found_garment = np.zeros((h, w), np.float32)
             ys, xs = np.nonzero(~key)
             box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
             mask, kp, vis = np.zeros((h, w)), np.zeros((33, 2)), np.zeros(33)
@@ -255,6 +259,7 @@ def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garmen
         per_frame["crop"].append(np.array(crop, np.float32))
         per_frame["mask_bits"].append(np.packbits(crop_mask(mask, crop, CROP) > 0.5))
         per_frame["garment_mask_bits"].append(np.packbits(crop_mask(garment_mask, crop, TRUE_CROP) > 0.5))
+        per_frame["found_garment_bits"].append(np.packbits(crop_mask(found_garment, crop, TRUE_CROP) > 0.5))
         per_frame["keypoints"].append(((kp - [x0, y0]) / side).astype(np.float16))
         per_frame["visibility"].append(np.asarray(vis, np.float16))
     out = {f"frame_{k}": np.stack(v) for k, v in per_frame.items()}
@@ -271,9 +276,22 @@ def unfilmed(frames: int) -> dict[str, np.ndarray]:
     return {"frame_found": np.zeros(frames, bool), "frame_crop": np.zeros((frames, 3), np.float32),
             "frame_mask_bits": np.zeros((frames, CROP * CROP // 8), np.uint8),
             "frame_garment_mask_bits": np.zeros((frames, TRUE_CROP * TRUE_CROP // 8), np.uint8),
+            "frame_found_garment_bits": np.zeros((frames, TRUE_CROP * TRUE_CROP // 8), np.uint8),
             "frame_keypoints": np.zeros((frames, 33, 2), np.float16), "frame_visibility": np.zeros((frames, 33), np.float16),
             "camera_azimuth_deg": np.float32(0), "camera_fov_deg": np.float32(0), "camera_eye": np.zeros(3, np.float32),
             "camera_target": np.zeros(3, np.float32), "garment_colour": np.zeros(3, np.float32)}
+
+
+def frame_step(dt: float, fps: float) -> int:
+    """Steps between recorded frames such that every clip frame (BLEND_TIME + k / fps) is
+    recorded exactly and few others are (each recorded frame is measured: intersections,
+    distances), e.g. 10 at dt 0.01 and 5 fps; 1 when the times do not fall on steps."""
+    import math
+
+    blend, per = BLEND_TIME / dt, 1.0 / (fps * dt)
+    if abs(blend - round(blend)) > 1e-6 or abs(per - round(per)) > 1e-6:
+        return 1
+    return max(1, math.gcd(round(blend), round(per)))
 
 
 def clip_frames(positions: np.ndarray, times: np.ndarray, frames: int, fps: float) -> tuple[np.ndarray, np.ndarray]:
