@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from tryon.errors import TryonError
-from tryon.learn.fabric_video import METHODS, ClipTensors, FabricFromClip, method_parts
+from tryon.learn.fabric_video import METHODS, ClipTensors, FabricFromClip, frame_masks, method_parts
 from tryon.learn.train_fabric_video import ClassifierTrainConfig, load_classifier, train_classifier
 
 T, CODE = 8, 16
@@ -18,13 +18,14 @@ def _clips(n: int = 72, seed: int = 0) -> ClipTensors:
     rng = np.random.default_rng(seed)
     label = np.arange(n) % 3
     t = np.arange(T) / T
-    masks = np.zeros((n, T, 128, 128), np.uint8)
+    masks = np.zeros((n, T, 2, 64, 64), np.uint8)
     codes = rng.normal(0, 0.05, (n, T, CODE)).astype(np.float32)
     for i, k in enumerate(label):
         swing = np.sin(2 * np.pi * (k + 1) * t + rng.uniform(0, 2 * np.pi))
         for f, s in enumerate(swing):
-            x = int(64 + 40 * s)
-            masks[i, f, 40:100, x - 6:x + 6] = 1
+            x = int(32 + 20 * s)
+            masks[i, f, 0, 20:50, x - 3:x + 3] = 1  # the person
+            masks[i, f, 1, 30:50, x - 3:x + 3] = 1  # the garment on them
         codes[i, :, 0] += swing
     keypoints = rng.random((n, T, 99)).astype(np.float32)
     split = np.where(np.arange(n) < n - 18, "train", np.where(np.arange(n) < n - 9, "val", "test"))
@@ -41,6 +42,18 @@ def test_methods_name_what_the_network_sees():
     clips = _clips(4)
     out = model(torch.from_numpy(clips.masks), torch.from_numpy(clips.keypoints), torch.from_numpy(clips.codes))
     assert out.shape == (4, 54)
+
+
+def test_a_clips_packed_masks_become_the_person_halved_and_the_garment():
+    person = np.zeros((3, 128, 128), bool)
+    person[:, 10:100, 40:60] = True
+    person[1, 0, 0] = True  # one pixel survives halving by maxima
+    garment = np.zeros((3, 64, 64), bool)
+    garment[:, 20:40, 22:28] = True
+    m = frame_masks(np.packbits(person.reshape(3, -1), axis=-1), np.packbits(garment.reshape(3, -1), axis=-1))
+    assert m.shape == (3, 2, 64, 64) and m.dtype == np.uint8
+    assert m[0, 0].sum() == 45 * 10 and m[1, 0, 0, 0] == 1 and m[0, 0, 0, 0] == 0
+    assert (m[:, 1] == garment).all()
 
 
 @pytest.mark.slow

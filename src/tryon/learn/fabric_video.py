@@ -21,7 +21,7 @@ from tryon.errors import TryonError
 
 METHODS = tuple(f"{inputs}-{join}" for inputs in ("image+garment", "image-only", "garment-only")
                 for join in ("temporal", "frame"))
-MASK = 128  # px: the person crop of the clip datasets (tryon.dataset.photos.CROP)
+MASK = 64  # px: the person's and the garment's masks in the crop, as the classifier reads them
 KEYPOINTS = 33
 
 
@@ -37,7 +37,7 @@ def method_parts(method: str) -> tuple[bool, bool, bool]:
 class ClipTensors:
     """Clips as the classifier reads them (numpy, row = clip)."""
 
-    masks: np.ndarray      # [N,T,MASK,MASK] uint8 (0/1): the person finder's mask per frame
+    masks: np.ndarray      # [N,T,2,MASK,MASK] uint8 (0/1): per frame the person's mask and the garment's found in it
     keypoints: np.ndarray  # [N,T,KEYPOINTS*3] float32: x, y in the crop (0-1) and visibility
     codes: np.ndarray      # [N,T,CODE] float32: the garment's code per frame
     label: np.ndarray      # [N] fabric class
@@ -46,6 +46,16 @@ class ClipTensors:
 
     def rows(self, split: str) -> np.ndarray:
         return np.nonzero(self.split == split)[0]
+
+
+def frame_masks(person_bits: np.ndarray, garment_bits: np.ndarray) -> np.ndarray:
+    """[T,2,MASK,MASK] uint8 from a clip's packed masks: the person's (128 px in the crop,
+    halved by 2 x 2 maxima) and the garment's found in the picture (64 px)."""
+    t = len(person_bits)
+    person = np.unpackbits(person_bits, axis=-1).reshape(t, 2 * MASK, 2 * MASK)
+    person = person.reshape(t, MASK, 2, MASK, 2).max(axis=(2, 4))
+    garment = np.unpackbits(garment_bits, axis=-1).reshape(t, MASK, MASK)
+    return np.stack([person, garment], axis=1).astype(np.uint8)
 
 
 def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipTensors:
@@ -67,8 +77,7 @@ def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipT
         faces = next(iter(reference_garments(folder).values())).faces
         for r in sample_rows(arrays):
             t = arrays["x"][r].shape[0]
-            bits = np.unpackbits(arrays["frame_mask_bits"][r], axis=-1)[:, :MASK * MASK]
-            parts["masks"].append(bits.reshape(t, MASK, MASK))
+            parts["masks"].append(frame_masks(arrays["frame_mask_bits"][r], arrays["frame_found_garment_bits"][r]))
             kp = np.concatenate([arrays["frame_keypoints"][r].astype(np.float32),
                                  arrays["frame_visibility"][r].astype(np.float32)[..., None]], -1)
             parts["keypoints"].append(kp.reshape(t, -1))
@@ -98,8 +107,8 @@ class FabricFromClip(nn.Module):
         width = 0
         if self.image:
             self.mask_cnn = nn.Sequential(
-                nn.Conv2d(1, 8, 5, stride=2, padding=2), nn.ReLU(), nn.Conv2d(8, 16, 3, stride=2, padding=1), nn.ReLU(),
-                nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU(), nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(),
+                nn.Conv2d(2, 8, 5, stride=2, padding=2), nn.ReLU(), nn.Conv2d(8, 16, 3, stride=2, padding=1), nn.ReLU(),
+                nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU(),
                 nn.AdaptiveAvgPool2d(8), nn.Flatten(), nn.Linear(2048, hidden), nn.ReLU())
             self.keypoint_mlp = nn.Sequential(nn.Linear(3 * KEYPOINTS, hidden), nn.ReLU())
             width += 2 * hidden
@@ -117,7 +126,7 @@ class FabricFromClip(nn.Module):
         b, t = codes.shape[:2]
         parts = []
         if self.image:
-            m = masks.reshape(b * t, 1, *masks.shape[2:]).float()
+            m = masks.reshape(b * t, *masks.shape[2:]).float()
             parts += [self.mask_cnn(m).view(b, t, -1), self.keypoint_mlp(keypoints)]
         if self.garment:
             parts.append(self.code_mlp(codes))
