@@ -10,6 +10,7 @@ from tryon.dataset import BodyRanges
 from tryon.dataset.clips import (
     ClipDatasetSpec, clip_fabric, clip_motion, frame_step, make_clip_dataset, varied_motion,
 )
+from tryon.dataset.store import Manifest
 from tryon.perceive.fabric_classes import FabricClasses
 
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
@@ -81,9 +82,19 @@ def test_a_clip_is_the_garment_following_the_body_after_the_blend(tmp_path):
     clips = clip_tensors([tmp_path / "clips"], codes)
     assert clips.masks.shape == (2, 4, 2, 64, 64) and clips.keypoints.shape == (2, 4, 99)
     assert clips.codes.shape == (2, 4, 12) and list(clips.label) == [0, 1] and set(clips.garment) == {"tshirt"}
+    # the clip as the fabric refinement sees it: its true fabric, simulated from the first
+    # frame with the body moving as it moved, follows it; a fabric 30x softer does not
+    from tryon.dataset.clips import clip_for_refinement
+    from tryon.fabric.blend import scaled_stiffness
+
+    sample = {k: shard[k][0] for k in shard.files}
+    clip, truth = clip_for_refinement(Manifest.read(tmp_path / "clips"), tmp_path / "clips", sample)
+    size = np.linalg.norm(clip.observed[0].max(0) - clip.observed[0].min(0))
+    err = {name: np.linalg.norm(clip.simulate(f)[1:] - clip.observed[1:], axis=-1).mean() / size
+           for name, f in (("truth", truth), ("soft", scaled_stiffness(truth, 1 / 30, 1 / 30)))}
+    assert err["truth"] < 0.01 and err["soft"] > 2 * err["truth"], err
     # a size that could not be dressed: its clips fail, naming why, with the arrays of any clip
     from tryon.dataset.clips import clip_unit, prepare_clips
-    from tryon.dataset.store import Manifest
 
     manifest = Manifest.read(tmp_path / "clips")
     refs = prepare_clips(manifest, tmp_path / "clips")

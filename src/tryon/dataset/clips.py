@@ -303,6 +303,33 @@ def clip_frames(positions: np.ndarray, times: np.ndarray, frames: int, fps: floa
     return positions[idx], times[idx]
 
 
+def clip_for_refinement(manifest: Manifest, folder, sample: dict, frames: int | None = None):
+    """A finished clip as the fabric refinement sees it (`tryon.perceive.refine_fabric`):
+    its first `frames` frames (all by default), the body moving as it moved, the garment's
+    rest shape; and the clip's true fabric."""
+    from tryon.dataset.loading import reference_garments
+    from tryon.perceive.refine_fabric import ClipToRefine, motion_after
+
+    spec = manifest.spec
+    unit = int(sample["unit"])
+    if not bool(sample["ok"]):
+        raise TryonError(f"clip {unit} did not finish ({sample['error']}); nothing to refine on")
+    body = sample_body(manifest.seed, unit, BodyRanges.from_dict(spec["ranges"]))
+    shape = body.shape()
+    motion, _ = clip_motion(manifest, unit)
+    # the motion's own clock at the clip's first frame (the blend lasts whole motion frames)
+    t0 = BLEND_TIME - max(1, int(round(BLEND_TIME * motion.fps))) / motion.fps
+    frames = frames or len(sample["x"])
+    moved, start, offset = motion_after(motion, shape, t0, (frames - 1) / spec["fps"])
+    gender = next(g for g, code in GENDER_CODE.items() if code == int(sample["gender"]))
+    ref = reference_garments(folder)[(gender, spec["sizes"][int(sample["size"])])]
+    req = DrapeRequest(body.measurements(), garment=spec["garment"], size=spec["sizes"][int(sample["size"])],
+                       fabric=spec["fabric"], edge_length=spec["edge_length"], **DATASET_DRAPE)
+    clip = ClipToRefine(shape, start, moved, np.asarray(sample["x"][:frames], np.float64) - offset, 1.0 / spec["fps"],
+                        ref.uv, ref.faces, ref.corner_uv, spec["garment"], req.thickness, req.friction, spec["dt"])
+    return clip, clip_fabric(manifest, unit)[1]
+
+
 def make_clip_dataset(spec: ClipDatasetSpec, out, workers: int = 1, ray_address: str | None = None,
                       force: bool = False, progress: bool = True, limit: int | None = None):
     from tryon.dataset.generate import open_dataset, run_generator

@@ -36,6 +36,23 @@ def blend_fabrics(a: WangFabric, b: WangFabric, t: float) -> WangFabric:
     return mixed
 
 
+def scaled_stiffness(fabric: WangFabric, stretching_mult: float, bending_mult: float, name: str | None = None) -> WangFabric:
+    """`fabric` with its stretching data times `stretching_mult` and its bending data times
+    `bending_mult`; density, anisotropy and non-linearity kept (the log10 stiffness features
+    move by the logs of the factors)."""
+    if not isinstance(fabric, WangFabric):
+        raise FabricError("only Wang 2011 fabrics (the measured presets) can be scaled")
+    if not (math.isfinite(stretching_mult) and math.isfinite(bending_mult) and stretching_mult > 0 and bending_mult > 0):
+        raise FabricError(f"stiffness factors must be positive, got {stretching_mult!r} and {bending_mult!r}")
+    p = fabric.parameters().detach().clone()
+    p[1:25] *= stretching_mult
+    p[25:] *= bending_mult
+    out = fabric.with_parameters(p)
+    out.name = name or f"{fabric.name} x{stretching_mult:.3g} stretching x{bending_mult:.3g} bending"
+    out.composition, out.multipliers = f"{fabric.name} with scaled stiffness", {}
+    return out
+
+
 def fabric_features(fabric: Fabric) -> np.ndarray:
     """[4] float32 in `FEATURE_NAMES` order: log10 of the warp-weft geometric mean stretching
     stiffness and of the shear stiffness at 16 % strain (where the Wang samples saturate),

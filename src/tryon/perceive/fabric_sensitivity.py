@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from tryon.fabric.blend import fabric_features
+from tryon.fabric.blend import fabric_features, scaled_stiffness
 from tryon.fabric.presets import mean_preset_fabric
 from tryon.fabric.wang2011 import MEASURED_FABRICS, WangFabric
 
@@ -66,10 +66,9 @@ def scaled_fabric(base: WangFabric, axis: str, log10_target: float) -> WangFabri
     that axis is `log10_target` (the features scale linearly with the data)."""
     col = STRETCH_FEATURE if axis == "stretching" else BEND_FEATURE
     factor = 10.0 ** (log10_target - float(fabric_features(base)[col]))
-    data = base.to_arcsim_dict()
     key = "stretching" if axis == "stretching" else "bending"
-    data[key] = (np.asarray(data[key]) * factor).tolist()
-    return WangFabric.from_arcsim_dict(data, name=f"{base.name}-{key}-{log10_target:.2f}")
+    return scaled_stiffness(base, factor if key == "stretching" else 1.0, factor if key == "bending" else 1.0,
+                            name=f"{base.name}-{key}-{log10_target:.2f}")
 
 
 def _hanging_scene(fabric: WangFabric, resolution: int = 16):
