@@ -208,10 +208,9 @@ def detect_person(photo: np.ndarray, name: str = "photo") -> PersonInPhoto | Non
     return _detect(image, name, scale)
 
 
-def find_person(photo: np.ndarray, name: str = "photo") -> PersonInPhoto:
-    """The largest whole standing person in an RGB photo [H,W,3] uint8; PersonNotFound
-    (naming `name`) if there is none."""
-    H, W = photo.shape[:2]
+def people_in_photo(photo: np.ndarray, name: str = "photo") -> list[PersonInPhoto]:
+    """Everyone BlazePose finds in the photo (at most MAX_PEOPLE), unchecked: each found
+    person is painted out and the photo searched again."""
     image, scale = working_image(photo)
     found: list[PersonInPhoto] = []
     search = image
@@ -222,6 +221,14 @@ def find_person(photo: np.ndarray, name: str = "photo") -> PersonInPhoto:
         p.image = image
         found.append(p)
         search = _paint_out(search, p)
+    return found
+
+
+def find_person(photo: np.ndarray, name: str = "photo") -> PersonInPhoto:
+    """The largest whole standing person in an RGB photo [H,W,3] uint8; PersonNotFound
+    (naming `name`) if there is none."""
+    H, W = photo.shape[:2]
+    found = people_in_photo(photo, name)
     if not found:
         raise PersonNotFound(f"{name}: no person found; use a photo of one whole standing person")
     reasons = [refusal(p, (H, W)) for p in found]

@@ -1,0 +1,176 @@
+"""The body's motion in a clip: the bone rotations of a body (`BodyShape`) that put its
+limbs where the person finder's 3D landmarks put the person's, frame by frame.
+
+BlazePose gives per frame 33 metric landmarks centred between the hips, in the camera's
+axes (x right, y down, z away). They become body axes (x right, y away, z up) and the fit
+matches directions, not positions, so the body's own proportions stand: each limb segment
+(shoulder-elbow, elbow-wrist, hip-knee, knee-ankle), the shoulder line, the hip line and
+the spine (hips' centre to shoulders' centre), weighted by how visible BlazePose says the
+landmarks are. The rotated bones are those of the built-in motions (root, spine03, upper
+and lower arms and legs), fitted over all frames at once by L-BFGS with a smoothness term
+between frames and a small pull towards the rest pose; each frame's root starts turned
+about the vertical to the landmarks' hip line, so the fit does not begin facing away.
+The result is a `BodyMotion` the simulator plays like any other.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tryon.errors import TryonError
+from tryon.perceive.person import K
+
+FITTED_BONES = ("root", "spine03", "upperarm01.L", "lowerarm01.L", "upperarm01.R", "lowerarm01.R",
+                "upperleg01.L", "lowerleg01.L", "upperleg01.R", "lowerleg01.R")
+# landmark -> the body joint at the same place (the bone whose head it is)
+JOINTS = {"left_shoulder": "upperarm01.L", "right_shoulder": "upperarm01.R", "left_elbow": "lowerarm01.L",
+          "right_elbow": "lowerarm01.R", "left_wrist": "wrist.L", "right_wrist": "wrist.R",
+          "left_hip": "upperleg01.L", "right_hip": "upperleg01.R", "left_knee": "lowerleg01.L",
+          "right_knee": "lowerleg01.R", "left_ankle": "foot.L", "right_ankle": "foot.R"}
+SEGMENTS = (("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("right_shoulder", "right_elbow"),
+            ("right_elbow", "right_wrist"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"),
+            ("right_hip", "right_knee"), ("right_knee", "right_ankle"), ("right_shoulder", "left_shoulder"),
+            ("right_hip", "left_hip"), ("mid_hip", "mid_shoulder"))
+SMOOTH = 0.05    # weight of frame-to-frame rotation change (rad^2, per frame) against the misfit (per frame)
+REST = 0.002     # weight of the rotations' size (rad^2): the rest pose where the landmarks say nothing
+MIN_VISIBILITY = 0.3
+CAMERA_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y down, z away) -> (x, y away, z up)
+
+
+def _rodrigues(r: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [...,3,3] of axis-angle vectors [...,3] (differentiable at 0)."""
+    theta2 = (r * r).sum(-1, keepdim=True)
+    theta = torch.sqrt(theta2 + 1e-12)
+    k = r / theta
+    zero = torch.zeros_like(r[..., 0])
+    kx = torch.stack([zero, -k[..., 2], k[..., 1], k[..., 2], zero, -k[..., 0], -k[..., 1], k[..., 0], zero], -1)
+    kx = kx.reshape(*r.shape[:-1], 3, 3)
+    s, c = torch.sin(theta)[..., None], torch.cos(theta)[..., None]
+    eye = torch.eye(3, dtype=r.dtype).expand_as(kx)
+    return eye + s * kx + (1 - c) * (kx @ kx)
+
+
+class Skeleton:
+    """The chain from the root to the landmarks' joints of one body, posed for many frames."""
+
+    def __init__(self, shape):
+        labels, parents = list(shape.bone_labels), list(shape.bone_parents)
+        missing = [b for b in FITTED_BONES + tuple(JOINTS.values()) if b not in labels]
+        if missing:
+            raise TryonError(f"the body's skeleton lacks the bones {missing}")
+        chain: set[int] = set()
+        for name in JOINTS.values():
+            j = labels.index(name)
+            while j >= 0:
+                chain.add(j)
+                j = parents[j]
+        self.order = sorted(chain, key=lambda j: self._depth(j, parents))
+        self.parents = parents
+        self.heads = shape.bone_heads.detach().to(torch.float64)
+        self.fitted = [labels.index(b) for b in FITTED_BONES]
+        self.joint = {lm: labels.index(b) for lm, b in JOINTS.items()}
+
+    @staticmethod
+    def _depth(j: int, parents: list[int]) -> int:
+        d = 0
+        while parents[j] >= 0:
+            j, d = parents[j], d + 1
+        return d
+
+    def joints(self, rotations: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Landmark name -> its joint's position [T,3] for fitted-bone axis-angles [T,B,3]."""
+        T = rotations.shape[0]
+        R = _rodrigues(rotations)
+        local_R = {j: R[:, i] for i, j in enumerate(self.fitted)}
+        G: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        eye = torch.eye(3, dtype=torch.float64).expand(T, 3, 3)
+        for j in self.order:
+            Rj = local_R.get(j, eye)
+            h = self.heads[j]
+            tj = h - torch.einsum("tab,b->ta", Rj, h)
+            p = self.parents[j]
+            if p < 0:
+                G[j] = (Rj, tj)
+            else:
+                Rp, tp = G[p]
+                G[j] = (Rp @ Rj, torch.einsum("tab,tb->ta", Rp, tj) + tp)
+        return {lm: torch.einsum("tab,b->ta", G[j][0], self.heads[j]) + G[j][1] for lm, j in self.joint.items()}
+
+
+def _with_mids(points: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    out = dict(points)
+    out["mid_hip"] = (points["left_hip"] + points["right_hip"]) / 2
+    out["mid_shoulder"] = (points["left_shoulder"] + points["right_shoulder"]) / 2
+    return out
+
+
+def landmark_directions(world: np.ndarray, visibility: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions [T,S,3] of the SEGMENTS in body axes and their weights [T,S]."""
+    w = np.asarray(world, dtype=np.float64) @ CAMERA_TO_BODY.T
+    pts = {name: w[:, K[name]] for name in JOINTS}
+    pts["mid_hip"] = (pts["left_hip"] + pts["right_hip"]) / 2
+    pts["mid_shoulder"] = (pts["left_shoulder"] + pts["right_shoulder"]) / 2
+    vis = {name: np.asarray(visibility)[:, K[name]] for name in JOINTS}
+    vis["mid_hip"] = np.minimum(vis["left_hip"], vis["right_hip"])
+    vis["mid_shoulder"] = np.minimum(vis["left_shoulder"], vis["right_shoulder"])
+    d = np.stack([pts[b] - pts[a] for a, b in SEGMENTS], 1)
+    d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
+    weight = np.stack([np.minimum(vis[a], vis[b]) for a, b in SEGMENTS], 1)
+    return d, np.where(weight >= MIN_VISIBILITY, weight, 0.0)
+
+
+def _initial_yaw(skeleton: Skeleton, directions: np.ndarray) -> np.ndarray:
+    """Per frame the turn about the vertical that lays the rest body's hip line (or, where
+    the hips are seen edge-on, its shoulder line) on the landmarks'."""
+    rest = _with_mids(skeleton.joints(torch.zeros(1, len(FITTED_BONES), 3, dtype=torch.float64)))
+    hip = (rest["left_hip"] - rest["right_hip"])[0].numpy()
+    a0 = np.arctan2(hip[1], hip[0])
+    seen = directions[:, SEGMENTS.index(("right_hip", "left_hip"))]
+    yaw = np.arctan2(seen[:, 1], seen[:, 0]) - a0
+    return np.unwrap(yaw)
+
+
+def fit_motion(shape, world: np.ndarray, visibility: np.ndarray, fps: float, iterations: int = 60,
+               name: str = "from video"):
+    """The `BodyMotion` of `shape` (bones FITTED_BONES) that follows BlazePose world
+    landmarks `world` [T,33,3] with `visibility` [T,33], at `fps`; and the mean angle (deg)
+    between the body's segments and the landmarks' over the visible ones."""
+    from tryon.body.motion_data import BodyMotion
+
+    world = np.asarray(world, dtype=np.float64)
+    if world.ndim != 3 or world.shape[1:] != (33, 3) or len(world) < 1:
+        raise TryonError(f"landmarks must be [frames, 33, 3], got {world.shape}")
+    skeleton = Skeleton(shape)
+    target, weight = landmark_directions(world, visibility)
+    if not (weight > 0).any():
+        raise TryonError("no limb of the person is visible enough to follow")
+    T = len(world)
+    rot = torch.zeros(T, len(FITTED_BONES), 3, dtype=torch.float64)
+    rot[:, 0, 2] = torch.from_numpy(_initial_yaw(skeleton, target))
+    rot.requires_grad_(True)
+    tgt, wgt = torch.from_numpy(target), torch.from_numpy(weight)
+    opt = torch.optim.LBFGS([rot], lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe")
+
+    def misfit(r: torch.Tensor) -> torch.Tensor:
+        pts = _with_mids(skeleton.joints(r))
+        d = torch.stack([pts[b] - pts[a] for a, b in SEGMENTS], 1)
+        d = d / torch.sqrt((d * d).sum(-1, keepdim=True) + 1e-12)
+        return (wgt * ((d - tgt) ** 2).sum(-1)).sum() / T
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = misfit(rot) + SMOOTH * ((rot[1:] - rot[:-1]) ** 2).sum() / max(T - 1, 1) \
+            + REST * (rot[:, 1:] ** 2).sum() / T
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    r = rot.detach()
+    with torch.no_grad():
+        pts = _with_mids(skeleton.joints(r))
+        d = torch.stack([pts[b] - pts[a] for a, b in SEGMENTS], 1)
+        d = d / d.norm(dim=-1, keepdim=True)
+        angle = torch.rad2deg(torch.arccos((d * tgt).sum(-1).clamp(-1, 1)))
+        mean_deg = float((angle * wgt).sum() / wgt.sum())
+    return BodyMotion(r.numpy(), list(FITTED_BONES), fps, None, name), mean_deg

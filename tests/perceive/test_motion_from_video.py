@@ -1,0 +1,60 @@
+"""The body's motion from a person finder's 3D landmarks: landmarks made from a known
+motion of the body (turned away from the camera, with centimetre noise) give that motion
+back, joint by joint."""
+
+import numpy as np
+import pytest
+
+from tryon.body.anny_model import ShapeParams, body_model
+from tryon.body.motion import load_motion
+from tryon.body.pose import bone_transforms, posed_heads
+from tryon.errors import TryonError
+from tryon.perceive.motion_from_video import CAMERA_TO_BODY, JOINTS, fit_motion
+from tryon.perceive.person import K
+
+pytestmark = [pytest.mark.anny]
+
+
+@pytest.fixture(scope="module")
+def shape():
+    return body_model().rest_shape(ShapeParams())
+
+
+def _joints(shape, poses, yaw_deg=0.0):
+    """Hip-centred joints per frame {landmark: [T,3]} of `poses` [T,J,3,3], turned by yaw."""
+    labels = list(shape.bone_labels)
+    a = np.deg2rad(yaw_deg)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    out = {lm: [] for lm in JOINTS}
+    for P in poses:
+        h = posed_heads(shape, bone_transforms(shape, P)) @ Rz.T
+        mid = (h[labels.index("upperleg01.L")] + h[labels.index("upperleg01.R")]) / 2
+        for lm, bone in JOINTS.items():
+            out[lm].append(h[labels.index(bone)] - mid)
+    return {lm: np.stack(v) for lm, v in out.items()}
+
+
+def test_a_walk_seen_as_landmarks_is_followed_to_within_centimetres(shape):
+    poses = load_motion("walk").pose_matrices(shape)[::2]
+    truth = _joints(shape, poses, yaw_deg=35.0)
+    T = len(poses)
+    world = np.zeros((T, 33, 3))
+    for lm, p in truth.items():
+        world[:, K[lm]] = p @ CAMERA_TO_BODY  # body axes -> the finder's camera axes
+    world += np.random.default_rng(0).normal(0.0, 0.01, world.shape)
+    visibility = np.ones((T, 33))
+    motion, mean_deg = fit_motion(shape, world, visibility, fps=15.0)
+    assert motion.num_frames == T and motion.fps == 15.0 and mean_deg < 6.0
+    fitted = _joints(shape, motion.pose_matrices(shape))
+    err = np.stack([np.linalg.norm(fitted[lm] - truth[lm], axis=-1) for lm in JOINTS])
+    assert err.mean() < 0.025 and err.max() < 0.08, (err.mean(), err.max())
+    # the knees and ankles swing as the walk's do (not a body standing still)
+    swing = np.ptp(truth["left_ankle"][:, 1] - truth["left_hip"][:, 1])
+    assert swing > 0.2 and np.ptp(fitted["left_ankle"][:, 1] - fitted["left_hip"][:, 1]) > 0.8 * swing
+
+
+def test_unseen_limbs_and_bad_landmarks_are_named(shape):
+    with pytest.raises(TryonError, match=r"\[frames, 33, 3\]"):
+        fit_motion(shape, np.zeros((4, 17, 3)), np.ones((4, 17)), 5.0)
+    with pytest.raises(TryonError, match="no limb"):
+        fit_motion(shape, np.random.default_rng(1).normal(size=(3, 33, 3)), np.zeros((3, 33)), 5.0)
