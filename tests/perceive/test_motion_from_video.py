@@ -53,6 +53,26 @@ def test_a_walk_seen_as_landmarks_is_followed_to_within_centimetres(shape):
     assert swing > 0.2 and np.ptp(fitted["left_ankle"][:, 1] - fitted["left_hip"][:, 1]) > 0.8 * swing
 
 
+def test_a_misread_frame_is_left_to_its_neighbours(shape):
+    from tryon.perceive.motion_from_video import misread_frames
+
+    poses = load_motion("walk").pose_matrices(shape)[::2]
+    truth = _joints(shape, poses)
+    T = len(poses)
+    world = np.zeros((T, 33, 3))
+    for lm, p in truth.items():
+        world[:, K[lm]] = p @ CAMERA_TO_BODY
+    # frame 6 misread: the finder folds the torso forward (shoulders 25 cm lower, 20 cm ahead)
+    for lm in ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist"):
+        world[6, K[lm]] += np.array([0.0, 0.25, -0.2])
+    pts = {lm: world[:, K[lm]] @ CAMERA_TO_BODY.T for lm in JOINTS}
+    assert list(np.nonzero(misread_frames(pts))[0]) == [6]
+    motion, _ = fit_motion(shape, world, np.ones((T, 33)), fps=15.0)
+    fitted = _joints(shape, motion.pose_matrices(shape))
+    err6 = np.mean([np.linalg.norm(fitted[lm][6] - truth[lm][6]) for lm in JOINTS])
+    assert err6 < 0.05, err6
+
+
 def test_unseen_limbs_and_bad_landmarks_are_named(shape):
     with pytest.raises(TryonError, match=r"\[frames, 33, 3\]"):
         fit_motion(shape, np.zeros((4, 17, 3)), np.ones((4, 17)), 5.0)

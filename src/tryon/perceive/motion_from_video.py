@@ -10,6 +10,8 @@ landmarks are. The rotated bones are those of the built-in motions (root, spine0
 and lower arms and legs), fitted over all frames at once by L-BFGS with a smoothness term
 between frames and a small pull towards the rest pose; each frame's root starts turned
 about the vertical to the landmarks' hip line, so the fit does not begin facing away.
+Frames whose landmarks are misread (a bone far from its length over the clip) are left to
+their neighbours.
 The result is a `BodyMotion` the simulator plays like any other.
 """
 
@@ -35,6 +37,7 @@ SEGMENTS = (("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("rig
 SMOOTH = 0.05    # weight of frame-to-frame rotation change (rad^2, per frame) against the misfit (per frame)
 REST = 0.002     # weight of the rotations' size (rad^2): the rest pose where the landmarks say nothing
 MIN_VISIBILITY = 0.3
+LENGTH_RATIO = 1.35  # a bone this many times longer or shorter than its median: the frame is misread
 CAMERA_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y down, z away) -> (x, y away, z up)
 
 
@@ -117,7 +120,22 @@ def landmark_directions(world: np.ndarray, visibility: np.ndarray) -> tuple[np.n
     d = np.stack([pts[b] - pts[a] for a, b in SEGMENTS], 1)
     d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
     weight = np.stack([np.minimum(vis[a], vis[b]) for a, b in SEGMENTS], 1)
-    return d, np.where(weight >= MIN_VISIBILITY, weight, 0.0)
+    weight = np.where(weight >= MIN_VISIBILITY, weight, 0.0)
+    return d, weight * ~misread_frames(pts)[:, None]
+
+
+def misread_frames(pts: dict[str, np.ndarray]) -> np.ndarray:
+    """Bool [T]: frames whose landmarks the finder misread, told by a bone or a side of
+    the torso whose length is off the clip's median by more than LENGTH_RATIO either way
+    (a person's bones keep their length; a misread frame folds the torso or a leg).
+    Clips shorter than 5 frames keep every frame."""
+    pairs = [(a, b) for a, b in SEGMENTS if "mid" not in a] + [("left_shoulder", "left_hip"),
+                                                              ("right_shoulder", "right_hip")]
+    lengths = np.stack([np.linalg.norm(pts[b] - pts[a], axis=-1) for a, b in pairs], 1)
+    if len(lengths) < 5:
+        return np.zeros(len(lengths), bool)
+    ratio = lengths / np.maximum(np.median(lengths, axis=0), 1e-9)
+    return ((ratio < 1 / LENGTH_RATIO) | (ratio > LENGTH_RATIO)).any(axis=1)
 
 
 def _initial_yaw(skeleton: Skeleton, directions: np.ndarray) -> np.ndarray:
