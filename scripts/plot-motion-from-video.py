@@ -17,7 +17,7 @@ from PIL import Image
 
 from tryon.body.fit import Measurements, fit_body
 from tryon.body.pose import posed_vertices
-from tryon.perceive.motion_from_video import fit_motion
+from tryon.perceive.motion_from_video import motion_of_person
 from tryon.perceive.video import Frames, follow_person, read_frames
 from tryon.render.offscreen import Camera, RenderMesh, render_meshes
 
@@ -52,15 +52,16 @@ def main() -> None:
     seen = [k for k, p in enumerate(people) if p is not None]
     shape = fit_body(Measurements(height_cm=height, weight_kg=weight, gender=gender)).shape
     t0 = time.perf_counter()
-    motion, deg = fit_motion(shape, np.stack([people[k].world for k in seen]),
-                             np.stack([people[k].visibility for k in seen]), frames.fps)
+    motion, deg = motion_of_person(shape, people, frames.fps)
+    travel = motion.root_translation[seen[-1]] - motion.root_translation[seen[0]]
     print(f"{len(seen)} of {len(people)} frames followed; fitted in {time.perf_counter() - t0:.1f} s, "
-          f"segments {deg:.1f} deg from the landmarks on average")
+          f"segments {deg:.1f} deg from the landmarks on average; travel {travel[0]:+.2f} m across, "
+          f"{travel[2]:+.2f} m up over {frames.times[seen[-1]] - frames.times[seen[0]]:.1f} s")
     faces = np.asarray(shape.faces)
     poses = motion.pose_matrices(shape)
     tiles = []
     for j in np.linspace(0, len(seen) - 1, 6).astype(int):
-        tiles.append(tile(people[seen[j]], posed_vertices(shape, poses[j]).detach().numpy(), faces))
+        tiles.append(tile(people[seen[j]], posed_vertices(shape, poses[seen[j]]).detach().numpy(), faces))
     width = max(t.shape[1] for t in tiles)
     tiles = [np.pad(t, ((0, 0), (0, width - t.shape[1]), (0, 0)), constant_values=255) for t in tiles]
     Image.fromarray(np.vstack([np.hstack(tiles[:3]), np.hstack(tiles[3:])])).save(

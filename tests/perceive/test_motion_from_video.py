@@ -73,6 +73,27 @@ def test_a_misread_frame_is_left_to_its_neighbours(shape):
     assert err6 < 0.05, err6
 
 
+def test_the_bodys_travel_across_the_picture_is_found_in_metres(shape):
+    from tryon.perceive.motion_from_video import body_travel
+
+    walk = load_motion("walk")
+    truth = _joints(shape, walk.pose_matrices(shape))  # hip-centred; the walk stays in place
+    T = walk.num_frames
+    travel = np.stack([0.03 * np.arange(T), np.zeros(T), 0.02 * np.sin(np.arange(T) / 3)], 1)  # m
+    scale, origin = 300.0, np.array([100.0, 250.0])  # px per m; where the hips start in the picture
+    keypoints, visibility = np.zeros((T, 33, 2)), np.zeros((T, 33))
+    for lm, p in truth.items():
+        at = p + travel
+        keypoints[:, K[lm]] = origin + scale * np.stack([at[:, 0], -at[:, 2]], 1)
+        visibility[:, K[lm]] = 1.0
+    visibility[10] = 0.0  # a frame where the person is not seen: its neighbours' travel
+    found, found_scale = body_travel(shape, walk, keypoints, visibility)
+    assert found_scale == pytest.approx(scale, rel=0.01)
+    ok = np.arange(T) != 10
+    assert np.abs(found[ok] - (travel[ok] - travel[0])).max() < 0.01
+    assert np.abs(found[10] - (travel[10] - travel[0])).max() < 0.03
+
+
 def test_unseen_limbs_and_bad_landmarks_are_named(shape):
     with pytest.raises(TryonError, match=r"\[frames, 33, 3\]"):
         fit_motion(shape, np.zeros((4, 17, 3)), np.ones((4, 17)), 5.0)

@@ -146,7 +146,11 @@ def _initial_yaw(skeleton: Skeleton, directions: np.ndarray) -> np.ndarray:
     a0 = np.arctan2(hip[1], hip[0])
     seen = directions[:, SEGMENTS.index(("right_hip", "left_hip"))]
     yaw = np.arctan2(seen[:, 1], seen[:, 0]) - a0
-    return np.unwrap(yaw)
+    ok = np.linalg.norm(seen, axis=-1) > 0.5
+    if not ok.any():
+        return np.zeros(len(seen))
+    frames = np.arange(len(seen))
+    return np.interp(frames, frames[ok], np.unwrap(yaw[ok]))  # frames without hips: their neighbours' turn
 
 
 def fit_motion(shape, world: np.ndarray, visibility: np.ndarray, fps: float, iterations: int = 60,
@@ -165,7 +169,7 @@ def fit_motion(shape, world: np.ndarray, visibility: np.ndarray, fps: float, ite
         raise TryonError("no limb of the person is visible enough to follow")
     T = len(world)
     rot = torch.zeros(T, len(FITTED_BONES), 3, dtype=torch.float64)
-    rot[:, 0, 2] = torch.from_numpy(_initial_yaw(skeleton, target))
+    rot[:, 0, 2] = torch.from_numpy(_initial_yaw(skeleton, target * (weight[..., None] > 0)))
     rot.requires_grad_(True)
     tgt, wgt = torch.from_numpy(target), torch.from_numpy(weight)
     opt = torch.optim.LBFGS([rot], lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe")
@@ -192,3 +196,57 @@ def fit_motion(shape, world: np.ndarray, visibility: np.ndarray, fps: float, ite
         angle = torch.rad2deg(torch.arccos((d * tgt).sum(-1).clamp(-1, 1)))
         mean_deg = float((angle * wgt).sum() / wgt.sum())
     return BodyMotion(r.numpy(), list(FITTED_BONES), fps, None, name), mean_deg
+
+
+def body_travel(shape, motion, keypoints: np.ndarray, visibility: np.ndarray) -> tuple[np.ndarray, float]:
+    """The body's travel [T,3] (m, x right, z up, from the first frame; none in depth) that
+    lays the posed joints of `motion` on the person's 2D keypoints [T,33,2] (px, y down)
+    seen by a still camera: one scale (px per m) for the clip and an offset per frame,
+    by least squares over the visible joints (`visibility` [T,33] >= 0.5). Frames with no
+    visible joint take their neighbours' travel. Returns the travel and the scale."""
+    skeleton = Skeleton(shape)
+    rot = np.zeros((motion.num_frames, len(FITTED_BONES), 3))
+    for i, bone in enumerate(FITTED_BONES):
+        if bone in motion.bone_labels:
+            rot[:, i] = motion.rotations[:, motion.bone_labels.index(bone)]
+    with torch.no_grad():
+        joints = skeleton.joints(torch.from_numpy(rot))
+    names = list(JOINTS)
+    P = np.stack([joints[n].numpy() for n in names], 1)                # [T,J,3] body axes
+    kp = np.asarray(keypoints, np.float64)[:, [K[n] for n in names]]    # [T,J,2]
+    w = (np.asarray(visibility)[:, [K[n] for n in names]] >= 0.5).astype(float)
+    seen = w.sum(1) >= 3
+    if not seen.any():
+        raise TryonError("too few joints are visible to follow the body's travel")
+    W = np.where(seen[:, None], w, 0.0)
+    n = np.maximum(W.sum(1, keepdims=True), 1e-9)
+
+    def centred(a: np.ndarray) -> np.ndarray:
+        return a - (W * a).sum(1, keepdims=True) / n
+
+    dX, dZ, dx, dy = centred(P[..., 0]), centred(P[..., 2]), centred(kp[..., 0]), centred(kp[..., 1])
+    scale = float((W * (dx * dX - dy * dZ)).sum() / max((W * (dX ** 2 + dZ ** 2)).sum(), 1e-12))
+    if not scale > 0:
+        raise TryonError("the body's joints cannot be laid on the person's keypoints (no positive scale fits)")
+    ox = ((W * (kp[..., 0] - scale * P[..., 0])).sum(1) / n[:, 0])
+    oy = ((W * (kp[..., 1] + scale * P[..., 2])).sum(1) / n[:, 0])
+    frames = np.arange(len(kp))
+    ox, oy = (np.interp(frames, frames[seen], o[seen]) for o in (ox, oy))
+    travel = np.stack([(ox - ox[0]) / scale, np.zeros(len(ox)), -(oy - oy[0]) / scale], 1)
+    return travel, scale
+
+
+def motion_of_person(shape, people: list, fps: float, name: str = "from video"):
+    """The motion of `shape` following a person through the frames of a clip (`people`:
+    per frame a `PersonInPhoto`, or None where the person was not found), travel
+    included; and the mean angle (deg) between the body's segments and the landmarks'."""
+    from tryon.body.motion_data import BodyMotion
+
+    if not any(p is not None for p in people):
+        raise TryonError("the person is not found in any frame")
+    world = np.stack([p.world if p is not None else np.zeros((33, 3)) for p in people])
+    visibility = np.stack([p.visibility if p is not None else np.zeros(33) for p in people])
+    keypoints = np.stack([p.keypoints / p.scale if p is not None else np.zeros((33, 2)) for p in people])
+    motion, mean_deg = fit_motion(shape, world, visibility, fps, name=name)
+    travel, _ = body_travel(shape, motion, keypoints, visibility)
+    return BodyMotion(motion.rotations, motion.bone_labels, fps, travel, name), mean_deg
