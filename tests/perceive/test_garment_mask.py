@@ -76,3 +76,23 @@ def test_no_person_means_no_garment_and_unknown_garments_are_named():
     assert not garment_mask(image, np.zeros_like(mask), kp, "tshirt").any()
     with pytest.raises(TryonError, match="hat"):
         garment_mask(image, mask, kp, "hat")
+
+
+def test_a_frame_is_read_as_the_clip_datasets_store_it():
+    from tryon.perceive.frame_features import GARMENT_CROP, frame_features
+    from tryon.perceive.person import CROP, PersonInPhoto
+
+    image, mask, kp, shirt, _ = _figure(np.random.default_rng(3))
+    person = PersonInPhoto("frame", image, 1.0, mask, kp, np.ones(33), np.zeros((33, 3)))
+    seen, crop = frame_features(image, person, "tshirt")
+    assert seen["found"] and seen["mask_bits"].shape == (CROP * CROP // 8,)
+    assert seen["found_garment_bits"].shape == (GARMENT_CROP * GARMENT_CROP // 8,)
+    person_px = np.unpackbits(seen["mask_bits"]).sum() / CROP ** 2
+    garment_px = np.unpackbits(seen["found_garment_bits"]).sum() / GARMENT_CROP ** 2
+    assert 0.15 < garment_px / person_px < 0.6  # the shirt is part of the person
+    inside = seen["keypoints"][seen["visibility"] > 0].astype(float)
+    assert ((inside > 0) & (inside < 1)).all() and crop[2] > 200  # the crop holds the 240 px figure
+    empty, _ = frame_features(image, None, "tshirt", box=(0, 0, 100, 200))
+    assert not empty["found"] and not empty["mask_bits"].any() and not empty["keypoints"].any()
+    with pytest.raises(ValueError, match="box"):
+        frame_features(image, None, "tshirt")

@@ -220,9 +220,9 @@ def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garmen
     (BlazePose, `tryon.perceive.person`) sees in the picture, cropped as the photo datasets
     crop it, the garment's mask found in the picture (`tryon.perceive.garment_mask`, as on
     real frames) and its true mask, both in the same crop."""
-    from tryon.dataset.photos import CROP, IMAGE_WH, TRUE_CROP, _background, _camera, _clothes_colours
-    from tryon.perceive.garment_mask import garment_mask as find_garment
-    from tryon.perceive.person import crop_box, crop_mask, detect_person
+    from tryon.dataset.photos import IMAGE_WH, TRUE_CROP, _background, _camera, _clothes_colours
+    from tryon.perceive.frame_features import frame_features
+    from tryon.perceive.person import crop_mask, detect_person
     from tryon.render.offscreen import RenderMesh, render_meshes
 
     w, h = IMAGE_WH
@@ -245,23 +245,12 @@ def film_clip(start: BodyPose, bodies: np.ndarray, garment_x: np.ndarray, garmen
                             background=(0.0, 0.0, 0.0))
         garment_mask = (ids[..., 1].astype(int) > ids[..., 2].astype(int) + 10).astype(np.float32)
         p = detect_person(photo, "clip frame")
-        if p is not None:
-            box, mask, kp, vis = p.box, p.mask, p.keypoints, p.visibility
-            found_garment = find_garment(photo, mask, kp, garment).astype(np.float32)
-        else:
-            found_garment = np.zeros((h, w), np.float32)
-            ys, xs = np.nonzero(~key)
-            box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
-            mask, kp, vis = np.zeros((h, w)), np.zeros((33, 2)), np.zeros(33)
-        crop = crop_box(box)
-        x0, y0, side = crop
-        per_frame["found"].append(p is not None)
-        per_frame["crop"].append(np.array(crop, np.float32))
-        per_frame["mask_bits"].append(np.packbits(crop_mask(mask, crop, CROP) > 0.5))
+        ys, xs = np.nonzero(~key)
+        seen, crop = frame_features(photo, p, garment, box=(int(xs.min()), int(ys.min()), int(xs.max()) + 1,
+                                                            int(ys.max()) + 1))
+        for k, v in seen.items():
+            per_frame[k].append(v)
         per_frame["garment_mask_bits"].append(np.packbits(crop_mask(garment_mask, crop, TRUE_CROP) > 0.5))
-        per_frame["found_garment_bits"].append(np.packbits(crop_mask(found_garment, crop, TRUE_CROP) > 0.5))
-        per_frame["keypoints"].append(((kp - [x0, y0]) / side).astype(np.float16))
-        per_frame["visibility"].append(np.asarray(vis, np.float16))
     out = {f"frame_{k}": np.stack(v) for k, v in per_frame.items()}
     out.update({"camera_azimuth_deg": np.float32(azimuth), "camera_fov_deg": np.float32(cam.fov_deg),
                 "camera_eye": cam.eye.astype(np.float32), "camera_target": cam.target.astype(np.float32),
