@@ -101,7 +101,7 @@ def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, b
         trans.append(np.zeros(3))
         times.append(k / fps)
     for t in np.arange(0.0, motion.duration + 1e-9, 1.0 / fps):
-        R, tr = _sample(motion, poses, t)
+        R, tr = pose_at(motion, poses, t)
         rots.append(R)
         trans.append(np.asarray(tr, float))
         times.append(n_blend / fps + t)
@@ -117,7 +117,7 @@ def motion_keyframes(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarra
     return posed_sequence(shape, rots, trans), times
 
 
-def _sample(motion: BodyMotion, poses: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+def pose_at(motion: BodyMotion, poses: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Pose [J,3,3] and root translation at time t (slerp between the nearest frames)."""
     u = min(max(t * motion.fps, 0.0), motion.num_frames - 1.0)
     k = min(int(np.floor(u)), motion.num_frames - 2) if motion.num_frames > 1 else 0

@@ -161,14 +161,14 @@ def motion_after(motion, shape, t0: float, duration: float, fps: float = 30.0):
     root translation at t0: a scene blending from that pose over 1/fps into the resampled
     motion has the body at motion time t0 + t at every time t, moved by minus that
     translation (subtract it from the observed garment too)."""
-    from tryon.body.motion import _sample
+    from tryon.body.motion import pose_at
     from tryon.body.motion_data import BodyMotion
     from tryon.body.pose import matrix_to_axis_angle
 
     poses = motion.pose_matrices(shape)
     times = t0 + (1 + np.arange(int(np.ceil(duration * fps)) + 1)) / fps
-    rots, trans = zip(*(_sample(motion, poses, float(t)) for t in times))
-    start, start_trans = _sample(motion, poses, t0)
+    rots, trans = zip(*(pose_at(motion, poses, float(t)) for t in times))
+    start, start_trans = pose_at(motion, poses, t0)
     offset = np.asarray(start_trans, dtype=np.float64)
     moved = BodyMotion(matrix_to_axis_angle(np.stack(rots)), list(shape.bone_labels), fps, np.stack(trans) - offset,
                        f"{motion.name}@{t0:.2f}s")
