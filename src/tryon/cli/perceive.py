@@ -1,10 +1,13 @@
-"""Commands that look at photos: `tryon person` (the person finder on your own pictures)
-and `tryon body from-images` (the body from one to four photos)."""
+"""Commands that look at photos and video: `tryon person` (the person finder on your own
+pictures), `tryon body from-images` (the body from one to four photos) and `tryon motion
+from-video` (a person's motion in a video, for `tryon animate --motion`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+import numpy as np
 
 
 def _cmd_person(args: argparse.Namespace) -> int:
@@ -60,6 +63,36 @@ def _cmd_body_from_images(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_motion_from_video(args: argparse.Namespace) -> int:
+    from tryon.body.fit import Measurements, fit_body
+    from tryon.io.atomic import atomic_output_dir, check_output_dir
+    from tryon.io.json_safe import dumps_json
+    from tryon.io.mesh_io import write_obj
+    from tryon.perceive.motion_from_video import facing_forward, motion_picture, read_video_motion
+    from tryon.render.offscreen import save_png
+
+    check_output_dir(args.out, force=args.force)
+    # the motion is bone rotations, which hardly depend on girth: without a weight, a BMI of 22
+    size = {"weight_kg": args.weight_kg} if args.weight_kg is not None else {"bmi": 22.0}
+    body = fit_body(Measurements(height_cm=args.height_cm, gender=args.gender, **size))
+    vm = read_video_motion(args.source, body.shape, fps=args.fps, start_s=args.start_s, end_s=args.end_s,
+                           folder_fps=args.frames_fps)
+    report = vm.report()
+    with atomic_output_dir(args.out, force=args.force) as tmp:
+        facing_forward(vm.motion).save(tmp / "motion.npz")
+        write_obj(tmp / "body.obj", vm.shape.vertices.detach().numpy(), np.asarray(vm.shape.faces))
+        save_png(tmp / "motion.png", motion_picture(vm))
+        with (tmp / "report.json").open("w") as fh:
+            fh.write(dumps_json({**report, "height_cm": args.height_cm, "weight_kg": args.weight_kg,
+                                 "gender": args.gender}, indent=2))
+    print(f"{args.source}: followed in {report['followed_frames']} of {report['frames']} frames "
+          f"({report['misread_frames']} misread, left to their neighbours); segments {report['mean_angle_deg']:.1f} "
+          f"deg from the landmarks; {np.linalg.norm(report['travel_m']):.2f} m travelled at "
+          f"{report['speed_m_s']:.2f} m/s ({report['seconds']:.1f} s) -> {args.out}/motion.npz "
+          f"(tryon animate DRAPE --motion {args.out}/motion.npz)")
+    return 0
+
+
 def add_photo_body_args(p: argparse.ArgumentParser, required: bool) -> None:
     """The person's own numbers that go with photos (stature fixes the scale)."""
     p.add_argument("--height-cm", type=float, required=required, help="stature in cm (fixes the photos' scale)")
@@ -86,3 +119,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--out", required=True, help="folder for body.obj, measurements.json, overlays, report.json")
     f.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
     f.set_defaults(func=_cmd_body_from_images)
+    m = sub.add_parser("motion", help="motions from video (tryon motion from-video)")
+    kinds = m.add_subparsers(dest="kind", required=True)
+    v = kinds.add_parser("from-video", help="the motion of the person in a video (or folder of frames), followed "
+                                            "frame by frame: motion.npz for tryon animate --motion, a picture, a report")
+    v.add_argument("source", help="a video file (mp4, mov, avi, ...) or a folder of frames in name order")
+    add_photo_body_args(v, required=True)
+    v.add_argument("--weight-kg", type=float, default=None, help="weight in kg (default: a BMI of 22; the motion hardly depends on it)")
+    v.add_argument("--fps", type=float, default=15.0, help="frames a second read from the video")
+    v.add_argument("--frames-fps", type=float, default=5.0, help="a folder of frames: the rate they were taken at")
+    v.add_argument("--start-s", type=float, default=0.0, help="start this many seconds into the video")
+    v.add_argument("--end-s", type=float, default=None, help="stop this many seconds into the video")
+    v.add_argument("--out", required=True, help="folder for motion.npz, body.obj, motion.png, report.json")
+    v.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
+    v.set_defaults(func=_cmd_motion_from_video)

@@ -17,11 +17,14 @@ The result is a `BodyMotion` the simulator plays like any other.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
 from tryon.errors import TryonError
 from tryon.perceive.person import K
+from tryon.perceive.video import Frames, follow_person, read_frames
 
 FITTED_BONES = ("root", "spine03", "upperarm01.L", "lowerarm01.L", "upperarm01.R", "lowerarm01.R",
                 "upperleg01.L", "lowerleg01.L", "upperleg01.R", "lowerleg01.R")
@@ -250,3 +253,102 @@ def motion_of_person(shape, people: list, fps: float, name: str = "from video"):
     motion, mean_deg = fit_motion(shape, world, visibility, fps, name=name)
     travel, _ = body_travel(shape, motion, keypoints, visibility)
     return BodyMotion(motion.rotations, motion.bone_labels, fps, travel, name), mean_deg
+
+
+def facing_forward(motion):
+    """`motion` turned about the vertical so that the body faces at its first frame as it
+    does at rest (the camera's view of the person is taken out; the motion then starts
+    from the rest orientation, as the built-in motions do)."""
+    from tryon.body.motion_data import BodyMotion
+    from tryon.body.pose import axis_angle, matrix_to_axis_angle
+
+    root = motion.bone_labels.index("root")
+    R = axis_angle(motion.rotations[:, root])
+    yaw = float(np.arctan2(R[0, 1, 0], R[0, 0, 0]))
+    c, s = np.cos(-yaw), np.sin(-yaw)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rotations = motion.rotations.copy()
+    rotations[:, root] = matrix_to_axis_angle(turn @ R)
+    return BodyMotion(rotations, list(motion.bone_labels), motion.fps, motion.root_translation @ turn.T, motion.name)
+
+
+@dataclass
+class VideoMotion:
+    """A person's motion read from a video, with what it was read from."""
+
+    motion: object          # BodyMotion, as seen by the camera (`facing_forward` turns it to the rest heading)
+    shape: object           # the body it was fitted on
+    frames: Frames
+    people: list            # per frame the followed PersonInPhoto, or None
+    mean_angle_deg: float
+    misread: int            # frames whose landmarks were misread (left to their neighbours)
+    seconds: float
+
+    def report(self) -> dict:
+        seen = [k for k, p in enumerate(self.people) if p is not None]
+        travel = self.motion.root_translation[seen[-1]] - self.motion.root_translation[seen[0]]
+        span = float(self.frames.times[seen[-1]] - self.frames.times[seen[0]])
+        return {"source": self.frames.source, "frames": len(self.people), "fps": self.motion.fps,
+                "followed_frames": len(seen), "misread_frames": self.misread,
+                "mean_angle_deg": self.mean_angle_deg, "travel_m": travel.tolist(),
+                "speed_m_s": float(np.linalg.norm(travel) / span) if span > 0 else 0.0,
+                "duration_s": self.motion.duration, "seconds": self.seconds}
+
+
+def read_video_motion(source, shape, fps: float = 15.0, start_s: float = 0.0, end_s: float | None = None,
+                      min_frames: int = 5, folder_fps: float = 5.0) -> VideoMotion:
+    """The motion of the person followed through `source` (a video file, or a folder of
+    frames taken `folder_fps` apart) between `start_s` and `end_s`, fitted on `shape`."""
+    import time
+
+    t0 = time.perf_counter()
+    frames = read_frames(source, fps=fps, folder_fps=folder_fps)
+    keep = [k for k, t in enumerate(frames.times) if t >= start_s - 1e-9 and (end_s is None or t <= end_s + 1e-9)]
+    if len(keep) < min_frames:
+        raise TryonError(f"{source}: {len(keep)} frames between {start_s:g} s and "
+                         f"{'the end' if end_s is None else f'{end_s:g} s'} at {fps:g} fps; at least {min_frames} needed")
+    frames = Frames([frames.images[k] for k in keep], frames.times[keep] - frames.times[keep[0]], frames.source)
+    people = follow_person(frames)
+    seen = sum(p is not None for p in people)
+    if seen < min_frames:
+        raise TryonError(f"{source}: the person is followed in only {seen} of {len(people)} frames; at least "
+                         f"{min_frames} needed")
+    motion, deg = motion_of_person(shape, people, float(fps))
+    pts = {n: np.stack([p.world[K[n]] if p is not None else np.zeros(3) for p in people]) for n in JOINTS}
+    misread = int((misread_frames(pts) & np.array([p is not None for p in people])).sum())
+    return VideoMotion(motion, shape, frames, people, deg, misread, time.perf_counter() - t0)
+
+
+def motion_picture(vm: VideoMotion, count: int = 6, height: int = 260) -> np.ndarray:
+    """`count` followed frames, each with its keypoints beside the fitted body seen from
+    the camera's side (RGB uint8, two rows)."""
+    from PIL import Image, ImageDraw
+
+    from tryon.body.pose import posed_vertices
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes
+
+    seen = [k for k, p in enumerate(vm.people) if p is not None]
+    poses = vm.motion.pose_matrices(vm.shape)
+    faces = np.asarray(vm.shape.faces)
+    tiles = []
+    for k in (seen[int(i)] for i in np.linspace(0, len(seen) - 1, min(count, len(seen)))):
+        p = vm.people[k]
+        img = Image.fromarray(p.image)
+        draw = ImageDraw.Draw(img)
+        for x, y in p.keypoints:
+            draw.ellipse((x - 2, y - 2, x + 2, y + 2), fill=(0, 255, 0))
+        x0, y0, x1, y1 = p.box
+        pad = (y1 - y0) // 15
+        crop = img.crop((max(0, x0 - pad), max(0, y0 - pad), x1 + pad, y1 + pad))
+        crop = np.asarray(crop.resize((max(1, int(crop.width * height / crop.height)), height)))
+        v = posed_vertices(vm.shape, poses[k]).detach().numpy()
+        c = (v.min(0) + v.max(0)) / 2
+        cam = Camera(eye=(c[0], c[1] - 6.0, c[2]), target=tuple(c), fov_deg=20)
+        tiles.append(np.hstack([crop, render_meshes([RenderMesh(v, faces, color=(0.75, 0.7, 0.65))], 200, height,
+                                                    cam)]))
+    width = max(t.shape[1] for t in tiles)
+    tiles = [np.pad(t, ((0, 0), (0, width - t.shape[1]), (0, 0)), constant_values=255) for t in tiles]
+    half = (len(tiles) + 1) // 2
+    rows = [np.hstack(tiles[:half]), np.hstack(tiles[half:])] if len(tiles) > 1 else [tiles[0]]
+    wide = max(r.shape[1] for r in rows)
+    return np.vstack([np.pad(r, ((0, 0), (0, wide - r.shape[1]), (0, 0)), constant_values=255) for r in rows])
