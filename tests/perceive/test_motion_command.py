@@ -39,8 +39,9 @@ def test_the_motion_of_a_clip_is_written_for_animate(tmp_path, capsys):
 
     _render_clip(tmp_path / "frames")
     out = tmp_path / "motion"
+    # asked for 15 fps from frames taken at 5 fps: the motion has the frames' rate
     assert main(["motion", "from-video", str(tmp_path / "frames"), "--height-cm", "170", "--gender", "female",
-                 "--fps", "5", "--out", str(out)]) == 0
+                 "--fps", "15", "--frames-fps", "5", "--out", str(out)]) == 0
     assert "followed in" in capsys.readouterr().out
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == 8 and report["followed_frames"] >= 7 and report["mean_angle_deg"] < 12

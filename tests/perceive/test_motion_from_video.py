@@ -53,6 +53,32 @@ def test_a_walk_seen_as_landmarks_is_followed_to_within_centimetres(shape):
     assert swing > 0.2 and np.ptp(fitted["left_ankle"][:, 1] - fitted["left_hip"][:, 1]) > 0.8 * swing
 
 
+def test_a_person_facing_the_camera_at_rest_is_the_body_at_rest(shape):
+    # BlazePose's world landmarks: x to the image's right, y down, z away from the camera,
+    # centred between the hips; a person facing the camera has their left side on the
+    # image's right. Anny stands facing -y with its left (.L) at +x and z up.
+    body = _joints(shape, [np.tile(np.eye(3), (len(shape.bone_labels), 1, 1))])
+    world = np.zeros((1, 33, 3))
+    for lm, p in body.items():
+        x, y, z = p[0]
+        world[0, K[lm]] = (x, -z, y)
+    assert world[0, K["left_shoulder"], 0] > 0.1 and world[0, K["left_shoulder"], 1] < -0.3
+    motion, mean_deg = fit_motion(shape, world, np.ones((1, 33)), fps=5.0)
+    assert mean_deg < 2.0
+    assert np.degrees(np.linalg.norm(motion.rotations[0], axis=-1)).max() < 8.0  # no turn, no bend
+
+
+def test_frames_without_the_person_do_not_make_the_others_misread(shape):
+    from tryon.perceive.motion_from_video import misread_frames
+
+    truth = _joints(shape, load_motion("walk").pose_matrices(shape)[::2])
+    T = len(truth["left_hip"])
+    pts = {lm: p.copy() for lm, p in truth.items()}
+    for p in pts.values():
+        p[: T // 2 + 2] = 0.0  # the person unseen in more than half of the frames
+    assert not misread_frames(pts).any()
+
+
 def test_a_misread_frame_is_left_to_its_neighbours(shape):
     from tryon.perceive.motion_from_video import misread_frames
 

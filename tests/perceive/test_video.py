@@ -35,6 +35,11 @@ def test_a_folder_of_frames_is_read_in_name_order(tmp_path):
     frames = read_frames(tmp_path, fps=5.0, folder_fps=10.0)
     assert [int(im.mean()) for im in frames.images] == [0, 80, 160]
     assert np.allclose(frames.times, [0.0, 0.2, 0.4])
+    # asked for more frames than the folder has: every frame, at the folder's own rate
+    every = read_frames(tmp_path, fps=15.0, folder_fps=5.0)
+    assert len(every.images) == 6 and every.fps == pytest.approx(5.0)
+    # a 25 fps source asked for 15 fps keeps every other frame: 12.5 fps, evenly spaced
+    assert read_frames(tmp_path, fps=15.0, folder_fps=25.0).fps == pytest.approx(12.5)
 
 
 def test_bad_sources_are_named(tmp_path):
@@ -46,6 +51,10 @@ def test_bad_sources_are_named(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputFileError, match="no pictures"):
         read_frames(tmp_path / "empty")
+    with pytest.raises(TryonError, match="positive"):
+        read_frames(tmp_path / "empty", folder_fps=0.0)
+    with pytest.raises(TryonError, match="at least 1"):
+        read_frames(tmp_path / "notes.mp4", max_frames=0)
 
 
 def _person(x0, y0, x1, y1):

@@ -65,9 +65,13 @@ class EpochLoop:
         start, best = 0, -float("inf")
         ckpt = out / CHECKPOINT
         if ckpt.exists():
-            state = torch.load(ckpt, weights_only=True)
-            model.load_state_dict(state["model"])
-            opt.load_state_dict(state["opt"])
+            try:
+                state = torch.load(ckpt, weights_only=True)
+                model.load_state_dict(state["model"])
+                opt.load_state_dict(state["opt"])
+            except (RuntimeError, KeyError, ValueError, OSError) as exc:
+                raise TryonError(f"{ckpt} cannot be resumed (made by another network or settings?): {exc}; "
+                                 "train into a new --out") from exc
             start, best, self.history = int(state["epoch"]), sign * float(state["best"]), json.loads(state["history"])
         rng = np.random.default_rng([self.seed, 1])
         for _ in range(start):  # the shuffles of the epochs already done, so a resumed run repeats them
@@ -90,7 +94,8 @@ class EpochLoop:
             if sign * score > best:
                 best = sign * score
                 keep_best()
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "epoch": epoch + 1,
-                        "best": sign * best, "history": json.dumps(self.history)}, ckpt)
+            with atomic_write(ckpt, "wb") as fh:  # a run killed mid-write keeps the last whole checkpoint
+                torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "epoch": epoch + 1,
+                            "best": sign * best, "history": json.dumps(self.history)}, fh)
         self.best, self.seconds = sign * best, time.perf_counter() - t0
         return self

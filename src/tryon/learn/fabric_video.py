@@ -74,6 +74,11 @@ def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipT
         if manifest.kind != KIND:
             raise DatasetError(f"{folder} holds a {manifest.kind!r} dataset, not clips")
         arrays = ShardStore(folder, manifest).load()
+        missing = sorted({"frame_mask_bits", "frame_found_garment_bits", "frame_keypoints", "frame_visibility",
+                          "fabric_class", "x"} - set(arrays))
+        if missing:
+            raise DatasetError(f"{folder}: its clips lack {', '.join(missing)} (made by an older generator); make "
+                               "the dataset again")
         faces = next(iter(reference_garments(folder).values())).faces
         for r in sample_rows(arrays):
             t = arrays["x"][r].shape[0]

@@ -47,7 +47,11 @@ def load_classifier(path: str | Path) -> tuple[FabricFromClip, dict]:
     state, fields = load_weights(path)
     meta = fields["meta"]
     model = FabricFromClip(meta["method"], meta["classes"], meta["code"])
-    model.load_state_dict(state)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise TryonError(f"{path} was made by another version of the fabric classifier's network; train it again "
+                         f"({str(exc).splitlines()[0]})") from exc
     model.eval()
     return model, fields["card"]
 

@@ -37,7 +37,7 @@ SEGMENTS = (("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"), ("rig
             ("right_elbow", "right_wrist"), ("left_hip", "left_knee"), ("left_knee", "left_ankle"),
             ("right_hip", "right_knee"), ("right_knee", "right_ankle"), ("right_shoulder", "left_shoulder"),
             ("right_hip", "left_hip"), ("mid_hip", "mid_shoulder"))
-SMOOTH = 0.05    # weight of frame-to-frame rotation change (rad^2, per frame) against the misfit (per frame)
+SMOOTH = 0.2     # weight of frame-to-frame rotation change (rad^2, per frame) against the misfit (per frame)
 REST = 0.002     # weight of the rotations' size (rad^2): the rest pose where the landmarks say nothing
 MIN_VISIBILITY = 0.3
 LENGTH_RATIO = 1.35  # a bone this many times longer or shorter than its median: the frame is misread
@@ -135,10 +135,11 @@ def misread_frames(pts: dict[str, np.ndarray]) -> np.ndarray:
     pairs = [(a, b) for a, b in SEGMENTS if "mid" not in a] + [("left_shoulder", "left_hip"),
                                                               ("right_shoulder", "right_hip")]
     lengths = np.stack([np.linalg.norm(pts[b] - pts[a], axis=-1) for a, b in pairs], 1)
-    if len(lengths) < 5:
+    found = (lengths > 1e-9).any(axis=1)  # frames without the person hold no landmarks: not misread, not counted
+    if found.sum() < 5:
         return np.zeros(len(lengths), bool)
-    ratio = lengths / np.maximum(np.median(lengths, axis=0), 1e-9)
-    return ((ratio < 1 / LENGTH_RATIO) | (ratio > LENGTH_RATIO)).any(axis=1)
+    ratio = lengths / np.maximum(np.median(lengths[found], axis=0), 1e-9)
+    return found & ((ratio < 1 / LENGTH_RATIO) | (ratio > LENGTH_RATIO)).any(axis=1)
 
 
 def _initial_yaw(skeleton: Skeleton, directions: np.ndarray) -> np.ndarray:
@@ -147,9 +148,12 @@ def _initial_yaw(skeleton: Skeleton, directions: np.ndarray) -> np.ndarray:
     rest = _with_mids(skeleton.joints(torch.zeros(1, len(FITTED_BONES), 3, dtype=torch.float64)))
     hip = (rest["left_hip"] - rest["right_hip"])[0].numpy()
     a0 = np.arctan2(hip[1], hip[0])
-    seen = directions[:, SEGMENTS.index(("right_hip", "left_hip"))]
+    hips = directions[:, SEGMENTS.index(("right_hip", "left_hip"))]
+    shoulders = directions[:, SEGMENTS.index(("right_shoulder", "left_shoulder"))]
+    edge_on = np.linalg.norm(hips[:, :2], axis=-1) < 0.3  # the hip line points at the camera (or is unseen)
+    seen = np.where(edge_on[:, None], shoulders, hips)
     yaw = np.arctan2(seen[:, 1], seen[:, 0]) - a0
-    ok = np.linalg.norm(seen, axis=-1) > 0.5
+    ok = np.linalg.norm(seen[:, :2], axis=-1) > 0.3
     if not ok.any():
         return np.zeros(len(seen))
     frames = np.arange(len(seen))
@@ -236,7 +240,18 @@ def body_travel(shape, motion, keypoints: np.ndarray, visibility: np.ndarray) ->
     frames = np.arange(len(kp))
     ox, oy = (np.interp(frames, frames[seen], o[seen]) for o in (ox, oy))
     travel = np.stack([(ox - ox[0]) / scale, np.zeros(len(ox)), -(oy - oy[0]) / scale], 1)
-    return travel, scale
+    return smoothed(travel), scale
+
+
+def smoothed(x: np.ndarray, window: int = 7) -> np.ndarray:
+    """`x` [T,...] through a Savitzky-Golay filter (quadratic, `window` frames): keypoint
+    jitter of a few pixels is centimetres a frame, metres a second of false speed."""
+    from scipy.signal import savgol_filter
+
+    w = min(window, len(x) - (1 - len(x) % 2))  # odd, at most the frames there are
+    if w < 5:
+        return x
+    return savgol_filter(x, w, 2, axis=0, mode="interp")
 
 
 def motion_of_person(shape, people: list, fps: float, name: str = "from video"):
@@ -313,7 +328,7 @@ def read_video_motion(source, shape, fps: float = 15.0, start_s: float = 0.0, en
     if seen < min_frames:
         raise TryonError(f"{source}: the person is followed in only {seen} of {len(people)} frames; at least "
                          f"{min_frames} needed")
-    motion, deg = motion_of_person(shape, people, float(fps))
+    motion, deg = motion_of_person(shape, people, frames.fps)  # the rate the frames have, not the one asked for
     pts = {n: np.stack([p.world[K[n]] if p is not None else np.zeros(3) for p in people]) for n in JOINTS}
     misread = int((misread_frames(pts) & np.array([p is not None for p in people])).sum())
     return VideoMotion(motion, shape, frames, people, deg, misread, time.perf_counter() - t0)

@@ -10,7 +10,8 @@ differences (two simulations; the scales are two numbers, so differences cost wh
 adjoints would and need no taped contact-rich steps). Each trial is a simulation of the
 clip from its first observed frame with the body moving as observed.
 
-`refine_scales` is the search over any `simulate(stretch_log10, bend_log10) -> frames`;
+`refine_scales` is the search over any `simulate(stretch_log10, bend_log10) -> frames`
+(`tryon.fabric.blend.scaled_stiffness` scales a fabric by 10 to those powers);
 `ClipToRefine` and `refine_clip_fabric` give it a garment on a moving body.
 """
 
@@ -46,21 +47,21 @@ class Refinement:
     history: list[dict] = field(default_factory=list)
 
 
-def scaled_fabric(base: WangFabric, stretch_log10: float, bend_log10: float, name: str = "refined") -> WangFabric:
-    """`base` with its stretching data times 10^stretch_log10 and its bending data times
-    10^bend_log10."""
-    return scaled_stiffness(base, 10.0 ** stretch_log10, 10.0 ** bend_log10, name=name)
-
-
 def refine_scales(simulate: Callable[[float, float], np.ndarray], observed: np.ndarray, start: tuple[float, float],
                   bounds: tuple[tuple[float, float], tuple[float, float]], iterations: int = 3,
-                  size: float | None = None, progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, list[dict]]:
+                  size: float | None = None, progress: Callable[[str], None] | None = None
+                  ) -> tuple[np.ndarray, float, list[dict]]:
     """Levenberg-Marquardt on theta = (stretch_log10, bend_log10) inside `bounds`, the
-    residual (simulate(theta) - observed)[1:] / size; returns theta and the history (one
-    row per simulation: theta, error = mean vertex distance / size). A simulation that
-    fails counts as no better."""
+    residual (simulate(theta) - observed)[1:] / size. Returns theta, its error (mean
+    vertex distance / size) and the history (one row per simulation: theta, error). A
+    simulation that fails counts as no better; a difference probe that beats the current
+    scales is taken."""
     observed = np.asarray(observed, dtype=np.float64)
+    if observed.ndim != 3 or len(observed) < 2:
+        raise TryonError(f"the observed garment needs at least 2 frames of [N, 3] points, got {observed.shape}")
     size = size or float(np.linalg.norm(observed[0].max(0) - observed[0].min(0)))
+    if not size > 0:
+        raise TryonError("the observed garment has no extent (its first frame is a single point)")
     lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
     history: list[dict] = []
 
@@ -86,6 +87,7 @@ def refine_scales(simulate: Callable[[float, float], np.ndarray], observed: np.n
     damping = DAMPING
     for _ in range(iterations):
         J = np.zeros((len(r), 2))
+        probes = []
         for k in range(2):
             step = FD_STEP if theta[k] + FD_STEP <= hi[k] else -FD_STEP
             t = theta.copy()
@@ -94,6 +96,7 @@ def refine_scales(simulate: Callable[[float, float], np.ndarray], observed: np.n
             if rk is None:
                 continue
             J[:, k] = (rk - r) / step
+            probes.append((float(rk @ rk), t, rk))
         A, g = J.T @ J, J.T @ r
         if not np.any(np.diag(A) > 0):
             break
@@ -110,9 +113,13 @@ def refine_scales(simulate: Callable[[float, float], np.ndarray], observed: np.n
                 improved = True
                 break
             damping *= 8
+        best_probe = min(probes, key=lambda p: p[0], default=None)
+        if best_probe is not None and best_probe[0] < loss:
+            loss, theta, r = best_probe
+            improved = True
         if not improved:
             break
-    return theta, history
+    return theta, float(np.linalg.norm(r.reshape(-1, 3), axis=-1).mean()), history
 
 
 @dataclass
@@ -183,10 +190,12 @@ def refine_clip_fabric(clip: ClipToRefine, start: tuple[float, float], bounds, b
 
     base = base or mean_preset_fabric()
     t0 = time.perf_counter()
+
+    def fabric(s: float, b: float) -> WangFabric:
+        return scaled_stiffness(base, 10.0 ** s, 10.0 ** b, name="refined")
+
     with torch.no_grad():
-        theta, history = refine_scales(lambda s, b: clip.simulate(scaled_fabric(base, s, b)), clip.observed, start,
-                                       bounds, iterations, progress=progress)
-    errors = [h["error"] for h in history if h["error"] is not None]
-    best = min(errors) if errors else float("nan")
-    return Refinement(float(theta[0]), float(theta[1]), scaled_fabric(base, *theta), float(history[0]["error"]),
-                      best, len(history), time.perf_counter() - t0, history)
+        theta, error, history = refine_scales(lambda s, b: clip.simulate(fabric(s, b)), clip.observed, start, bounds,
+                                              iterations, progress=progress)
+    return Refinement(float(theta[0]), float(theta[1]), fabric(*theta), float(history[0]["error"]), error,
+                      len(history), time.perf_counter() - t0, history)

@@ -34,30 +34,31 @@ class Frames:
 
     @property
     def fps(self) -> float:
-        return float(1.0 / np.median(np.diff(self.times))) if len(self.times) > 1 else 0.0
+        return round(float(1.0 / np.median(np.diff(self.times))), 6) if len(self.times) > 1 else 0.0
 
 
-def _picked(times: np.ndarray, fps: float, max_frames: int | None) -> list[int]:
-    """Indices of the source frames nearest every 1/fps from the first."""
-    want = np.arange(times[0], times[-1] + 1e-9, 1.0 / fps)
-    idx = sorted(set(int(np.abs(times - t).argmin()) for t in want))
-    return idx[:max_frames] if max_frames else idx
+def _step(rate: float, fps: float) -> int:
+    """Every how many source frames one is kept: the kept frames are evenly spaced (the
+    clip's rate is rate / step, the nearest to `fps` that is)."""
+    return max(1, int(round(rate / fps)))
 
 
 def read_frames(source: str | Path, fps: float = 5.0, max_frames: int | None = None,
                 folder_fps: float = 5.0) -> Frames:
     """The frames of `source` (a video file, or a folder of pictures taken `folder_fps`
-    apart, in name order) at about `fps` frames a second, at most `max_frames`."""
+    apart, in name order) at about `fps` frames a second (every k-th source frame, so
+    they stay evenly spaced: `Frames.fps` is the rate they have), at most `max_frames`."""
     path = Path(source)
-    if not fps > 0:
-        raise TryonError(f"frame rate {fps} must be positive")
+    if not fps > 0 or not folder_fps > 0:
+        raise TryonError(f"frame rates must be positive, got {fps} and {folder_fps} per second")
+    if max_frames is not None and max_frames < 1:
+        raise TryonError(f"max_frames {max_frames}: give at least 1 (or none, for every frame)")
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in PICTURE_SUFFIXES)
         if not files:
             raise InputFileError(f"{path}: the folder holds no pictures ({', '.join(PICTURE_SUFFIXES)})")
-        times = np.arange(len(files)) / folder_fps
-        idx = _picked(times, fps, max_frames)
-        return Frames([load_photo(files[i]) for i in idx], times[idx], str(path))
+        idx = list(range(0, len(files), _step(folder_fps, fps)))[:max_frames]
+        return Frames([load_photo(files[i]) for i in idx], np.asarray(idx) / folder_fps, str(path))
     if not path.exists():
         raise InputFileError(f"{path}: no such video file or folder of frames")
     return _read_video(path, fps, max_frames)
@@ -72,17 +73,17 @@ def _read_video(path: Path, fps: float, max_frames: int | None) -> Frames:
         if not cap.isOpened() or not rate > 0:
             raise InputFileError(f"{path}: not a video this reader can decode (use {', '.join(VIDEO_SUFFIXES)}, "
                                  "or a folder of frames)")
-        step = max(1, int(round(rate / fps)))
+        step = _step(rate, fps)
         images, times, i = [], [], 0
         while max_frames is None or len(images) < max_frames:
-            ok = cap.grab()
-            if not ok:
+            if not cap.grab():
                 break
             if i % step == 0:
                 ok, frame = cap.retrieve()
-                if ok and frame is not None:
-                    images.append(np.ascontiguousarray(frame[..., ::-1]))
-                    times.append(i / rate)
+                if not ok or frame is None:
+                    break  # a frame that cannot be decoded ends the clip: the kept ones stay evenly spaced
+                images.append(np.ascontiguousarray(frame[..., ::-1]))
+                times.append(i / rate)
             i += 1
     finally:
         cap.release()
