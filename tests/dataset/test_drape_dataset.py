@@ -8,7 +8,7 @@ import pytest
 
 from tryon.cli import main
 from tryon.dataset import BodyRanges, DrapeDatasetSpec, load_drape_dataset, make_drape_dataset, sample_body
-from tryon.dataset.drapes import drape_unit, shape_params, shape_vector, unit_of
+from tryon.dataset.drapes import shape_params, shape_vector, unit_of
 from tryon.drape import DrapeRequest, drape
 from tryon.errors import TryonError
 

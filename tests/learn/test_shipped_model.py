@@ -3,7 +3,6 @@ model card on the held-out drapes that ship with it, beats the skinning baseline
 `tryon drape --method learned` / `tryon size` / `tryon bench learned` use it by default."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
