@@ -82,3 +82,27 @@ def ray_cluster():
         except subprocess.TimeoutExpired:
             head.kill()
         shutil.rmtree(temp, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def arm_raise_frames(tmp_path_factory):
+    """A folder of 8 front views (480 x 640, taken 0.2 s apart) of the average body raising
+    its arms (the built-in arm raise, its first half)."""
+    import numpy as np
+    from PIL import Image
+
+    from tryon.body.anny_model import ShapeParams, body_model
+    from tryon.body.motion import load_motion
+    from tryon.body.pose import posed_vertices
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes
+
+    folder = tmp_path_factory.mktemp("arm-raise")
+    shape = body_model().rest_shape(ShapeParams())
+    poses = load_motion("arm-raise").pose_matrices(shape)
+    verts = [posed_vertices(shape, poses[k]).detach().numpy() for k in np.linspace(0, len(poses) // 2, 8).astype(int)]
+    cam = Camera.fit(verts, "front", aspect=480 / 640, margin=1.25)
+    for i, v in enumerate(verts):
+        img = render_meshes([RenderMesh(v, np.asarray(shape.faces), color=(0.85, 0.68, 0.58))], 480, 640, cam,
+                            background=(0.55, 0.6, 0.65), backend="numpy")
+        Image.fromarray(img).save(folder / f"frame{i:02d}.png")
+    return folder

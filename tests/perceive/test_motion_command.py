@@ -1,5 +1,6 @@
-"""`tryon motion from-video` on a rendered clip of a body raising its arms: the motion it
-writes raises the arms too, and `tryon animate` can read it."""
+"""`tryon motion from-video` on a rendered clip of a body raising its arms (the
+`arm_raise_frames` fixture): the motion it writes raises the arms too, and `tryon animate`
+can read it."""
 
 import json
 
@@ -12,35 +13,14 @@ from tryon.cli import main
 pytestmark = [pytest.mark.anny, pytest.mark.slow]
 
 
-def _render_clip(folder, frames=8):
-    """A front view of the average body doing the built-in arm raise, `frames` pictures."""
-    from tryon.body.anny_model import ShapeParams, body_model
-    from tryon.body.motion import load_motion
-    from tryon.body.pose import posed_vertices
-    from tryon.render.offscreen import Camera, RenderMesh, render_meshes
-
-    shape = body_model().rest_shape(ShapeParams())
-    motion = load_motion("arm-raise")
-    poses = motion.pose_matrices(shape)
-    picked = np.linspace(0, len(poses) // 2, frames).astype(int)  # arms going up
-    verts = [posed_vertices(shape, poses[k]).detach().numpy() for k in picked]
-    cam = Camera.fit(verts, "front", aspect=480 / 640, margin=1.25)
-    folder.mkdir()
-    for i, v in enumerate(verts):
-        img = render_meshes([RenderMesh(v, np.asarray(shape.faces), color=(0.85, 0.68, 0.58))], 480, 640, cam,
-                            background=(0.55, 0.6, 0.65), backend="numpy")
-        Image.fromarray(img).save(folder / f"frame{i:02d}.png")
-
-
-def test_the_motion_of_a_clip_is_written_for_animate(tmp_path, capsys):
+def test_the_motion_of_a_clip_is_written_for_animate(arm_raise_frames, tmp_path, capsys):
     from tryon.body.anny_model import ShapeParams, body_model
     from tryon.body.motion import load_motion
     from tryon.body.pose import bone_transforms, posed_heads
 
-    _render_clip(tmp_path / "frames")
     out = tmp_path / "motion"
     # asked for 15 fps from frames taken at 5 fps: the motion has the frames' rate
-    assert main(["motion", "from-video", str(tmp_path / "frames"), "--height-cm", "170", "--gender", "female",
+    assert main(["motion", "from-video", str(arm_raise_frames), "--height-cm", "170", "--gender", "female",
                  "--fps", "15", "--frames-fps", "5", "--out", str(out)]) == 0
     assert "followed in" in capsys.readouterr().out
     report = json.loads((out / "report.json").read_text())

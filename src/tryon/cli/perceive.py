@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tryon.errors import TryonError
+
 
 def _cmd_person(args: argparse.Namespace) -> int:
     from tryon.errors import TryonError
@@ -93,6 +95,33 @@ def _cmd_motion_from_video(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_perceive(args: argparse.Namespace) -> int:
+    from tryon.body.fit import Measurements, fit_body
+    from tryon.garment.drafts import GARMENTS
+    from tryon.io.atomic import atomic_output_dir, check_output_dir
+    from tryon.learn.fabric_from_video import perceive_video, write_perceived
+
+    if args.garment not in GARMENTS:
+        raise TryonError(f"unknown garment {args.garment!r}; use one of {', '.join(GARMENTS)}")
+    check_output_dir(args.out, force=args.force)
+    size = {"weight_kg": args.weight_kg} if args.weight_kg is not None else {"bmi": 22.0}
+    body = fit_body(Measurements(height_cm=args.height_cm, gender=args.gender, **size))
+    seen = perceive_video(args.source, body.shape, args.garment, start_s=args.start_s, classifier=args.classifier,
+                          folder_fps=args.frames_fps)
+    with atomic_output_dir(args.out, force=args.force) as tmp:
+        report = write_perceived(seen, tmp)
+    for note in report["notes"]:
+        print(f"note: {note}")
+    m = report["motion"]
+    print(f"{args.source}: the person followed in {m['followed_frames']} of {m['frames']} frames, the {args.garment} "
+          f"found in {report['classifier_frames']}; motion -> {args.out}/motion.npz")
+    if report["fabric"]:
+        f = report["fabric"]
+        print(f"fabric class {f['class']} ({100 * f['probability']:.0f} %; nearest measured fabrics: "
+              f"{', '.join(f['nearest_presets'])}) -> {args.out}/fabric.json (tryon drape --fabric)")
+    return 0
+
+
 def add_photo_body_args(p: argparse.ArgumentParser, required: bool) -> None:
     """The person's own numbers that go with photos (stature fixes the scale)."""
     p.add_argument("--height-cm", type=float, required=required, help="stature in cm (fixes the photos' scale)")
@@ -133,3 +162,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--out", required=True, help="folder for motion.npz, body.obj, motion.png, report.json")
     v.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
     v.set_defaults(func=_cmd_motion_from_video)
+    c = sub.add_parser("perceive", help="a clip of a person in a garment: their motion, the garment in each frame and, "
+                                        "with a trained classifier, the fabric class (docs/FABRIC_FROM_VIDEO.md)")
+    c.add_argument("source", help="a video file or a folder of frames; 5 s are read from --start-s")
+    add_photo_body_args(c, required=True)
+    c.add_argument("--weight-kg", type=float, default=None, help="weight in kg (default: a BMI of 22)")
+    c.add_argument("--garment", required=True, help="the garment worn: tshirt, longsleeve, trousers, skirt, dress")
+    c.add_argument("--start-s", type=float, default=0.0, help="start this many seconds into the video")
+    c.add_argument("--frames-fps", type=float, default=15.0, help="a folder of frames: the rate they were taken at")
+    c.add_argument("--classifier", help="a fabric classifier from tryon train fabric-video (image-only methods)")
+    c.add_argument("--out", required=True, help="folder for motion.npz, body.obj, frames.png, report.json, fabric.json")
+    c.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
+    c.set_defaults(func=_cmd_perceive)

@@ -1,0 +1,183 @@
+"""`tryon perceive`: a clip of a person moving in a garment becomes their motion, the
+garment found in each frame and, with a trained fabric classifier, the fabric's class with
+its probabilities and a fabric to drape with (docs/FABRIC_FROM_VIDEO.md).
+
+The clip is read at 15 frames a second for the body's motion (`tryon.perceive.
+motion_from_video`); every third frame (5 a second, at most 25: the clips the classifier
+learns from) is read as the classifier reads clip renders (`tryon.perceive.frame_features`).
+Classifiers that read garment codes need the garment per frame, which no estimator gives
+yet: only image-only classifiers are used here.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tryon.errors import TryonError
+from tryon.fabric.blend import scaled_stiffness
+from tryon.fabric.presets import mean_preset_fabric
+from tryon.fabric.wang2011 import WangFabric
+from tryon.perceive.fabric_classes import FabricClasses, default_classes
+from tryon.perceive.frame_features import frame_features
+
+CLIP_FPS, CLIP_FRAMES, MIN_FRAMES = 5.0, 25, 8
+MOTION_FPS = 15.0
+
+
+@dataclass
+class Perceived:
+    """What a clip shows: the motion read from it, what the classifier reads of each of its
+    frames, and the fabric class (None without a classifier)."""
+
+    video: object                    # VideoMotion
+    garment: str
+    frames: list[int]                # the motion's frames the classifier reads
+    features: list[dict]
+    classes: FabricClasses
+    probabilities: np.ndarray | None = None
+    fabric: WangFabric | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def fabric_class(self) -> int | None:
+        return None if self.probabilities is None else int(self.probabilities.argmax())
+
+
+def class_fabric(classes: FabricClasses, c: int, base: WangFabric | None = None) -> WangFabric:
+    """A fabric at the centre of class c: `base` (the mean measured fabric) with its
+    stiffness scaled there."""
+    base = base or mean_preset_fabric()
+    (s0, s1), (b0, b1) = classes.box(c)
+    s, b = classes.position(base)
+    fabric = scaled_stiffness(base, 10.0 ** ((s0 + s1) / 2 - s), 10.0 ** ((b0 + b1) / 2 - b),
+                              name=f"class-{classes.name(c)}")
+    fabric.composition = f"the mean measured fabric scaled to the centre of fabric class {classes.name(c)}"
+    return fabric
+
+
+def classifier_inputs(features: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Masks [1,T,2,64,64] and keypoints [1,T,99] as `tryon.learn.fabric_video` reads clips."""
+    from tryon.learn.fabric_video import frame_masks
+
+    masks = frame_masks(np.stack([f["mask_bits"] for f in features]), np.stack([f["found_garment_bits"] for f in features]))
+    kp = np.concatenate([np.stack([f["keypoints"] for f in features]).astype(np.float32),
+                         np.stack([f["visibility"] for f in features]).astype(np.float32)[..., None]], -1)
+    return torch.from_numpy(masks[None]), torch.from_numpy(kp.reshape(1, len(features), -1))
+
+
+def classify(model, features: list[dict]) -> np.ndarray:
+    """Class probabilities of an image-only classifier on the frames' features."""
+    from tryon.learn.fabric_video import method_parts
+
+    if method_parts(model.method)[1]:
+        raise TryonError(f"the classifier reads garment codes ({model.method}), which need the garment in each "
+                         "frame; no estimator gives it yet: use an image-only model (tryon train fabric-video "
+                         "--method image-only-temporal)")
+    masks, keypoints = classifier_inputs(features)
+    codes = torch.zeros(1, len(features), 1)  # unread by an image-only model; it sets the clip's length
+    with torch.no_grad():
+        return torch.softmax(model(masks, keypoints, codes), -1)[0].numpy()
+
+
+def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier: str | None = None,
+                   folder_fps: float = MOTION_FPS) -> Perceived:
+    """Read `source` (a video file, or a folder of frames taken `folder_fps` apart) from `start_s`:
+    the motion of the person in it fitted on `shape`, the garment (`garment`) found in the
+    classifier's frames, and with `classifier` (a model file of `tryon train fabric-video`)
+    the fabric class."""
+    from tryon.learn.fabric_video import method_parts
+    from tryon.learn.train_fabric_video import load_classifier
+    from tryon.perceive.motion_from_video import read_video_motion
+
+    model = load_classifier(classifier)[0] if classifier else None  # a bad model file fails before the work
+    if model is not None and method_parts(model.method)[1]:
+        raise TryonError(f"{classifier} reads garment codes ({model.method}), which need the garment in each frame; "
+                         "no estimator gives it yet: use an image-only model (tryon train fabric-video --method "
+                         "image-only-temporal)")
+    duration = (CLIP_FRAMES - 1) / CLIP_FPS
+    vm = read_video_motion(source, shape, fps=MOTION_FPS, start_s=start_s, end_s=start_s + duration + 1e-6,
+                           min_frames=MIN_FRAMES, folder_fps=folder_fps)
+    step = max(1, int(round(vm.motion.fps / CLIP_FPS)))
+    picked = list(range(0, len(vm.people), step))[:CLIP_FRAMES]
+    features, last_box = [], None
+    for k in picked:
+        p = vm.people[k]
+        box = p.box if p is not None else last_box
+        if box is None:
+            continue  # before the person is first found
+        features.append(frame_features(p.image if p is not None else vm.frames.images[k], p, garment, box=box)[0])
+        last_box = box if p is not None else last_box
+    out = Perceived(vm, garment, picked, features, default_classes())
+    if len(features) < MIN_FRAMES:
+        raise TryonError(f"{source}: only {len(features)} frames at {CLIP_FPS:g} a second show the person; at least "
+                         f"{MIN_FRAMES} are needed")
+    if model is None:
+        out.notes.append("no fabric classifier given (--classifier): the class is not named; none is shipped yet")
+        return out
+    if model.classes != out.classes.count:
+        raise TryonError(f"{classifier} names {model.classes} classes, the fabric classes are {out.classes.count}")
+    out.probabilities = classify(model, features)
+    out.fabric = class_fabric(out.classes, out.fabric_class)
+    return out
+
+
+def nearest_presets(classes: FabricClasses, c: int, count: int = 3) -> list[str]:
+    """The measured fabrics whose classes lie nearest class c (bins apart, then name)."""
+    return sorted(classes.preset_classes(), key=lambda n: (classes.distance(classes.class_of(
+        WangFabric.from_preset(n)), c), n))[:count]
+
+
+def frames_picture(p: Perceived, count: int = 6) -> np.ndarray:
+    """Up to `count` of the classifier's frames: the person tinted blue, the garment found
+    red (RGB uint8, one row)."""
+    from PIL import Image
+
+    from tryon.perceive.garment_mask import garment_mask
+
+    tiles = []
+    for k in p.frames[:: max(1, len(p.frames) // count)][:count]:
+        person = p.video.people[k]
+        if person is None:
+            continue
+        m = garment_mask(person.image, person.mask, person.keypoints, p.garment)
+        img = person.image.astype(np.float64)
+        rest = (person.mask > 0.5) & ~m
+        img[m] = 0.45 * img[m] + (140, 0, 0)
+        img[rest] = 0.6 * img[rest] + (0, 0, 100)
+        x0, y0, x1, y1 = person.box
+        pad = (y1 - y0) // 12
+        crop = Image.fromarray(img.astype(np.uint8)).crop((max(0, x0 - pad), max(0, y0 - pad), x1 + pad, y1 + pad))
+        tiles.append(np.asarray(crop.resize((max(1, int(crop.width * 260 / crop.height)), 260))))
+    if not tiles:
+        return np.zeros((260, 260, 3), np.uint8)
+    return np.hstack(tiles)
+
+
+def write_perceived(p: Perceived, out: Path) -> dict:
+    """motion.npz, body.obj, frames.png, report.json and (with a class) fabric.json in `out`."""
+    from tryon.io.json_safe import dumps_json
+    from tryon.io.mesh_io import write_obj
+    from tryon.perceive.motion_from_video import facing_forward
+    from tryon.render.offscreen import save_png
+
+    facing_forward(p.video.motion).save(out / "motion.npz")
+    write_obj(out / "body.obj", p.video.shape.vertices.detach().numpy(), np.asarray(p.video.shape.faces))
+    save_png(out / "frames.png", frames_picture(p))
+    report = {"motion": p.video.report(), "classifier_frames": len(p.features), "notes": p.notes, "fabric": None}
+    if p.probabilities is not None:
+        c = p.fabric_class
+        top = np.argsort(-p.probabilities)[:5]
+        report["fabric"] = {"class": p.classes.name(c), "probability": float(p.probabilities[c]),
+                            "top": [{"class": p.classes.name(int(k)), "probability": float(p.probabilities[k])}
+                                    for k in top],
+                            "nearest_presets": nearest_presets(p.classes, c), "file": "fabric.json"}
+        with (out / "fabric.json").open("w") as fh:
+            fh.write(json.dumps(p.fabric.to_arcsim_dict(), indent=1))
+    with (out / "report.json").open("w") as fh:
+        fh.write(dumps_json(report, indent=2))
+    return report

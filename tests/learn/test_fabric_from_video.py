@@ -1,0 +1,54 @@
+"""`tryon perceive` on a rendered clip (the `arm_raise_frames` fixture): the motion, the
+garment in each frame, and with a classifier (a tiny one trained here) the fabric class and
+a fabric file that `tryon drape --fabric` reads; classifiers that need garment codes are
+refused before any work."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tryon.cli import main
+from tryon.fabric.presets import load_fabric
+from tryon.learn.fabric_video import ClipTensors
+from tryon.learn.train_fabric_video import ClassifierTrainConfig, train_classifier
+from tryon.perceive.fabric_classes import default_classes
+
+pytestmark = [pytest.mark.anny, pytest.mark.slow]
+
+
+def _tiny_classifier(folder, method):
+    rng = np.random.default_rng(0)
+    n, T = 6, 8
+    clips = ClipTensors((rng.random((n, T, 2, 64, 64)) > 0.5).astype(np.uint8), rng.random((n, T, 99)).astype(np.float32),
+                        rng.normal(size=(n, T, 16)).astype(np.float32), np.arange(n) * 9, np.array(["train"] * n),
+                        np.array(["tshirt"] * n))
+    train_classifier(clips, folder, method, ClassifierTrainConfig(epochs=1, batch=3), classes=54, progress=False)
+    return folder / "fabric-video.npz"
+
+
+def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp_path, capsys):
+    args = ["perceive", str(arm_raise_frames), "--height-cm", "170", "--gender", "female", "--garment", "tshirt",
+            "--frames-fps", "5"]
+    # without a classifier: the motion and the garment, the class left unnamed
+    assert main(args + ["--out", str(tmp_path / "plain")]) == 0
+    report = json.loads((tmp_path / "plain" / "report.json").read_text())
+    assert report["fabric"] is None and any("no fabric classifier" in n for n in report["notes"])
+    assert report["classifier_frames"] == 8 and report["motion"]["followed_frames"] >= 7
+    assert (tmp_path / "plain" / "motion.npz").exists() and (tmp_path / "plain" / "frames.png").exists()
+    # with an image-only classifier: a class, its probabilities, a fabric of that class
+    model = _tiny_classifier(tmp_path / "image", "image-only-temporal")
+    assert main(args + ["--classifier", str(model), "--out", str(tmp_path / "classed")]) == 0
+    assert "fabric class S" in capsys.readouterr().out
+    fabric = json.loads((tmp_path / "classed" / "report.json").read_text())["fabric"]
+    top = [t["probability"] for t in fabric["top"]]
+    assert 0 < top[0] <= 1 and top == sorted(top, reverse=True) and fabric["class"] == fabric["top"][0]["class"]
+    classes = default_classes()
+    made = load_fabric(str(tmp_path / "classed" / "fabric.json"))
+    assert classes.name(classes.class_of(made)) == fabric["class"]
+    assert len(fabric["nearest_presets"]) == 3
+    # a classifier that reads garment codes is refused, naming why, before the clip is read
+    coded = _tiny_classifier(tmp_path / "coded", "image+garment-temporal")
+    assert main(args + ["--classifier", str(coded), "--out", str(tmp_path / "refused")]) != 0
+    assert "reads garment codes" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
