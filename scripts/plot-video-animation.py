@@ -24,6 +24,8 @@ W, H = 220, 300
 
 def video_tile(image: np.ndarray) -> np.ndarray:
     p = detect_person(image, "frame")
+    if p is None:
+        raise SystemExit("no person found in a frame the picture needs; choose other --start-s or TIMES")
     x0, y0, x1, y1 = (int(v / p.scale) for v in p.box)
     pad = (y1 - y0) // 10
     h = (y1 - y0) + 2 * pad

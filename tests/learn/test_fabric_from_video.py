@@ -27,6 +27,21 @@ def _tiny_classifier(folder, method):
     return folder / "fabric-video.npz"
 
 
+@pytest.mark.parametrize("rate", [12.5, 15.0, 25.0, 30.0])
+def test_the_classifier_reads_frames_5_a_second_from_where_the_person_is_found(rate):
+    from tryon.learn.fabric_from_video import clip_frames
+
+    times = np.arange(int(8 * rate)) / rate
+    found = times >= 0.3
+    picked = clip_frames(times, found)
+    first = int(np.argmax(found))
+    assert len(picked) == 25 and picked[0] == first
+    assert np.abs(times[picked] - (times[first] + np.arange(25) / 5.0)).max() <= 0.5 / rate + 1e-9
+    # a gap in the source ends the clip there
+    gap = np.concatenate([times[times < 2.0], times[times > 3.0]])
+    assert len(clip_frames(gap, gap >= 0.0)) == 11  # 0.0, 0.2, ..., 2.0 s
+
+
 def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp_path, capsys):
     args = ["perceive", str(arm_raise_frames), "--height-cm", "170", "--gender", "female", "--garment", "tshirt",
             "--frames-fps", "5"]
@@ -34,13 +49,15 @@ def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp
     assert main(args + ["--out", str(tmp_path / "plain")]) == 0
     report = json.loads((tmp_path / "plain" / "report.json").read_text())
     assert report["fabric"] is None and any("no fabric classifier" in n for n in report["notes"])
-    assert report["classifier_frames"] == 8 and report["motion"]["followed_frames"] >= 7
+    assert report["classifier_frames"] == 8 and report["motion"]["followed_frames"] == 8
+    assert report["garment_found_frames"] >= 6
     assert (tmp_path / "plain" / "motion.npz").exists() and (tmp_path / "plain" / "frames.png").exists()
     # with an image-only classifier: a class, its probabilities, a fabric of that class
     model = _tiny_classifier(tmp_path / "image", "image-only-temporal")
+    capsys.readouterr()
     assert main(args + ["--classifier", str(model), "--out", str(tmp_path / "classed")]) == 0
-    assert "fabric class S" in capsys.readouterr().out
     fabric = json.loads((tmp_path / "classed" / "report.json").read_text())["fabric"]
+    assert f"fabric class {fabric['class']} (" in capsys.readouterr().out
     top = [t["probability"] for t in fabric["top"]]
     assert 0 < top[0] <= 1 and top == sorted(top, reverse=True) and fabric["class"] == fabric["top"][0]["class"]
     classes = default_classes()
@@ -48,7 +65,9 @@ def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp
     assert classes.name(classes.class_of(made)) == fabric["class"]
     assert len(fabric["nearest_presets"]) == 3
     # a classifier that reads garment codes is refused, naming why, before the clip is read
+    # (the clip given does not exist: the refusal comes first)
     coded = _tiny_classifier(tmp_path / "coded", "image+garment-temporal")
-    assert main(args + ["--classifier", str(coded), "--out", str(tmp_path / "refused")]) != 0
+    refused = ["perceive", str(tmp_path / "no-such-clip.mp4")] + args[2:]
+    assert main(refused + ["--classifier", str(coded), "--out", str(tmp_path / "refused")]) != 0
     assert "reads garment codes" in capsys.readouterr().err
     assert not (tmp_path / "refused").exists()

@@ -43,6 +43,6 @@ def test_the_motion_of_a_clip_is_written_for_animate(arm_raise_frames, tmp_path,
     for i in range(6):
         Image.fromarray(np.full((640, 480, 3), 128, np.uint8)).save(tmp_path / "empty" / f"f{i}.png")
     assert main(["motion", "from-video", str(tmp_path / "empty"), "--height-cm", "170", "--gender", "female",
-                 "--fps", "5", "--out", str(tmp_path / "none")]) != 0
+                 "--fps", "5", "--frames-fps", "5", "--out", str(tmp_path / "none")]) != 0
     assert "no person found" in capsys.readouterr().err
     assert not (tmp_path / "none").exists()

@@ -25,6 +25,9 @@ def test_a_video_is_read_at_the_rate_asked_for(tmp_path):
     # the frames are the ones at those times (brightness 8 per source frame)
     assert [int(round(im.mean() / 8)) for im in frames.images] == [0, 6, 12, 18, 24]
     assert len(read_frames(tmp_path / "clip.avi", fps=5.0, max_frames=3).images) == 3
+    # a window of the source: only its frames are decoded, their times stay the source's
+    part = read_frames(tmp_path / "clip.avi", fps=5.0, start_s=0.35, end_s=0.85)
+    assert np.allclose(part.times, [0.4, 0.6, 0.8]) and [int(round(im.mean() / 8)) for im in part.images] == [12, 18, 24]
 
 
 def test_a_folder_of_frames_is_read_in_name_order(tmp_path):

@@ -113,8 +113,9 @@ def _cmd_perceive(args: argparse.Namespace) -> int:
     for note in report["notes"]:
         print(f"note: {note}")
     m = report["motion"]
-    print(f"{args.source}: the person followed in {m['followed_frames']} of {m['frames']} frames, the {args.garment} "
-          f"found in {report['classifier_frames']}; motion -> {args.out}/motion.npz")
+    print(f"{args.source}: the person followed in {m['followed_frames']} of {m['frames']} frames; of the "
+          f"{report['classifier_frames']} frames the classifier reads (5 a second), the {args.garment} is found in "
+          f"{report['garment_found_frames']}; motion -> {args.out}/motion.npz")
     if report["fabric"]:
         f = report["fabric"]
         print(f"fabric class {f['class']} ({100 * f['probability']:.0f} %; nearest measured fabrics: "
@@ -156,7 +157,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     add_photo_body_args(v, required=True)
     v.add_argument("--weight-kg", type=float, default=None, help="weight in kg (default: a BMI of 22; the motion hardly depends on it)")
     v.add_argument("--fps", type=float, default=15.0, help="frames a second read from the video")
-    v.add_argument("--frames-fps", type=float, default=5.0, help="a folder of frames: the rate they were taken at")
+    v.add_argument("--frames-fps", type=float, default=15.0, help="a folder of frames: the rate they were taken at")
     v.add_argument("--start-s", type=float, default=0.0, help="start this many seconds into the video")
     v.add_argument("--end-s", type=float, default=None, help="stop this many seconds into the video")
     v.add_argument("--out", required=True, help="folder for motion.npz, body.obj, motion.png, report.json")

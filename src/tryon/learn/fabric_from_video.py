@@ -62,26 +62,47 @@ def class_fabric(classes: FabricClasses, c: int, base: WangFabric | None = None)
 
 def classifier_inputs(features: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
     """Masks [1,T,2,64,64] and keypoints [1,T,99] as `tryon.learn.fabric_video` reads clips."""
-    from tryon.learn.fabric_video import frame_masks
+    from tryon.learn.fabric_video import frame_inputs
 
-    masks = frame_masks(np.stack([f["mask_bits"] for f in features]), np.stack([f["found_garment_bits"] for f in features]))
-    kp = np.concatenate([np.stack([f["keypoints"] for f in features]).astype(np.float32),
-                         np.stack([f["visibility"] for f in features]).astype(np.float32)[..., None]], -1)
-    return torch.from_numpy(masks[None]), torch.from_numpy(kp.reshape(1, len(features), -1))
+    masks, kp = frame_inputs(*(np.stack([f[k] for f in features])
+                               for k in ("mask_bits", "found_garment_bits", "keypoints", "visibility")))
+    return torch.from_numpy(masks[None]), torch.from_numpy(kp[None])
+
+
+def check_image_only(model, name: str) -> None:
+    """Refuse a classifier that reads garment codes: nothing gives the garment per frame yet."""
+    from tryon.learn.fabric_video import method_parts
+
+    if method_parts(model.method)[1]:
+        raise TryonError(f"{name} reads garment codes ({model.method}), which need the garment in each frame; no "
+                         "estimator gives it yet: use an image-only model (tryon train fabric-video --method "
+                         "image-only-temporal)")
 
 
 def classify(model, features: list[dict]) -> np.ndarray:
     """Class probabilities of an image-only classifier on the frames' features."""
-    from tryon.learn.fabric_video import method_parts
-
-    if method_parts(model.method)[1]:
-        raise TryonError(f"the classifier reads garment codes ({model.method}), which need the garment in each "
-                         "frame; no estimator gives it yet: use an image-only model (tryon train fabric-video "
-                         "--method image-only-temporal)")
+    check_image_only(model, "the classifier")
     masks, keypoints = classifier_inputs(features)
     codes = torch.zeros(1, len(features), 1)  # unread by an image-only model; it sets the clip's length
     with torch.no_grad():
         return torch.softmax(model(masks, keypoints, codes), -1)[0].numpy()
+
+
+def clip_frames(times: np.ndarray, found: np.ndarray, fps: float = CLIP_FPS, count: int = CLIP_FRAMES,
+                tolerance: float = 0.1) -> list[int]:
+    """Indices of the frames nearest every 1/fps from the first frame with the person, at
+    most `count`, each within `tolerance` s of its time (a gap in the source ends them)."""
+    first = int(np.argmax(found)) if found.any() else None
+    if first is None:
+        return []
+    picked = []
+    for k in range(count):
+        want = times[first] + k / fps
+        i = int(np.abs(times - want).argmin())
+        if abs(times[i] - want) > tolerance:
+            break
+        picked.append(i)
+    return picked
 
 
 def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier: str | None = None,
@@ -90,37 +111,32 @@ def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier
     the motion of the person in it fitted on `shape`, the garment (`garment`) found in the
     classifier's frames, and with `classifier` (a model file of `tryon train fabric-video`)
     the fabric class."""
-    from tryon.learn.fabric_video import method_parts
     from tryon.learn.train_fabric_video import load_classifier
     from tryon.perceive.motion_from_video import read_video_motion
 
+    classes = default_classes()
     model = load_classifier(classifier)[0] if classifier else None  # a bad model file fails before the work
-    if model is not None and method_parts(model.method)[1]:
-        raise TryonError(f"{classifier} reads garment codes ({model.method}), which need the garment in each frame; "
-                         "no estimator gives it yet: use an image-only model (tryon train fabric-video --method "
-                         "image-only-temporal)")
+    if model is not None:
+        check_image_only(model, classifier)
+        if model.classes != classes.count:
+            raise TryonError(f"{classifier} names {model.classes} classes, the fabric classes are {classes.count}")
     duration = (CLIP_FRAMES - 1) / CLIP_FPS
     vm = read_video_motion(source, shape, fps=MOTION_FPS, start_s=start_s, end_s=start_s + duration + 1e-6,
-                           min_frames=MIN_FRAMES, folder_fps=folder_fps)
-    step = max(1, int(round(vm.motion.fps / CLIP_FPS)))
-    picked = list(range(0, len(vm.people), step))[:CLIP_FRAMES]
-    features, last_box = [], None
+                           folder_fps=folder_fps)
+    found = np.array([p is not None for p in vm.people])
+    picked = clip_frames(vm.frames.times, found)
+    features, box = [], None
     for k in picked:
         p = vm.people[k]
-        box = p.box if p is not None else last_box
-        if box is None:
-            continue  # before the person is first found
-        features.append(frame_features(p.image if p is not None else vm.frames.images[k], p, garment, box=box)[0])
-        last_box = box if p is not None else last_box
-    out = Perceived(vm, garment, picked, features, default_classes())
+        box = p.box if p is not None else box  # a frame without the person: empty, cropped where they were
+        features.append(frame_features(p.image if p is not None else None, p, garment, box=box)[0])
+    out = Perceived(vm, garment, picked, features, classes)
     if len(features) < MIN_FRAMES:
-        raise TryonError(f"{source}: only {len(features)} frames at {CLIP_FPS:g} a second show the person; at least "
-                         f"{MIN_FRAMES} are needed")
+        raise TryonError(f"{source}: the clip gives {len(features)} frames at {CLIP_FPS:g} a second from where the "
+                         f"person is first found; at least {MIN_FRAMES} ({(MIN_FRAMES - 1) / CLIP_FPS:g} s) are needed")
     if model is None:
         out.notes.append("no fabric classifier given (--classifier): the class is not named; none is shipped yet")
         return out
-    if model.classes != out.classes.count:
-        raise TryonError(f"{classifier} names {model.classes} classes, the fabric classes are {out.classes.count}")
     out.probabilities = classify(model, features)
     out.fabric = class_fabric(out.classes, out.fabric_class)
     return out
@@ -128,8 +144,8 @@ def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier
 
 def nearest_presets(classes: FabricClasses, c: int, count: int = 3) -> list[str]:
     """The measured fabrics whose classes lie nearest class c (bins apart, then name)."""
-    return sorted(classes.preset_classes(), key=lambda n: (classes.distance(classes.class_of(
-        WangFabric.from_preset(n)), c), n))[:count]
+    of = classes.preset_classes()
+    return sorted(of, key=lambda n: (classes.distance(of[n], c), n))[:count]
 
 
 def frames_picture(p: Perceived, count: int = 6) -> np.ndarray:
@@ -168,7 +184,9 @@ def write_perceived(p: Perceived, out: Path) -> dict:
     facing_forward(p.video.motion).save(out / "motion.npz")
     write_obj(out / "body.obj", p.video.shape.vertices.detach().numpy(), np.asarray(p.video.shape.faces))
     save_png(out / "frames.png", frames_picture(p))
-    report = {"motion": p.video.report(), "classifier_frames": len(p.features), "notes": p.notes, "fabric": None}
+    report = {"motion": p.video.report(), "classifier_frames": len(p.features),
+              "garment_found_frames": int(sum(f["found_garment_bits"].any() for f in p.features)), "notes": p.notes,
+              "fabric": None}
     if p.probabilities is not None:
         c = p.fabric_class
         top = np.argsort(-p.probabilities)[:5]

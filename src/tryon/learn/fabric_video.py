@@ -58,6 +58,14 @@ def frame_masks(person_bits: np.ndarray, garment_bits: np.ndarray) -> np.ndarray
     return np.stack([person, garment], axis=1).astype(np.uint8)
 
 
+def frame_inputs(mask_bits: np.ndarray, garment_bits: np.ndarray, keypoints: np.ndarray,
+                 visibility: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A clip's frames as the classifier reads them, from what `frame_features` stores per
+    frame (stacked over T frames): masks [T,2,MASK,MASK] uint8 and keypoints [T,99] float32."""
+    kp = np.concatenate([keypoints.astype(np.float32), visibility.astype(np.float32)[..., None]], -1)
+    return frame_masks(mask_bits, garment_bits), kp.reshape(len(kp), -1)
+
+
 def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipTensors:
     """The ok clips of clip datasets (`tryon dataset clips`) with every frame's garment
     coded by `codes_model` (a `GarmentCodes`; each frame's cloud drawn from the seed)."""
@@ -82,10 +90,10 @@ def clip_tensors(folders: list[str | Path], codes_model, seed: int = 0) -> ClipT
         faces = next(iter(reference_garments(folder).values())).faces
         for r in sample_rows(arrays):
             t = arrays["x"][r].shape[0]
-            parts["masks"].append(frame_masks(arrays["frame_mask_bits"][r], arrays["frame_found_garment_bits"][r]))
-            kp = np.concatenate([arrays["frame_keypoints"][r].astype(np.float32),
-                                 arrays["frame_visibility"][r].astype(np.float32)[..., None]], -1)
-            parts["keypoints"].append(kp.reshape(t, -1))
+            masks, kp = frame_inputs(*(arrays[f"frame_{k}"][r] for k in ("mask_bits", "found_garment_bits",
+                                                                          "keypoints", "visibility")))
+            parts["masks"].append(masks)
+            parts["keypoints"].append(kp)
             clouds = np.stack([centred_cloud(arrays["x"][r][k].astype(np.float64), faces, rng, codes_model.config.cloud)
                                for k in range(t)])
             with torch.no_grad():

@@ -14,11 +14,11 @@ from tryon.perceive.person import CROP, PersonInPhoto, crop_box, crop_mask
 GARMENT_CROP = 64  # px: the garment's mask is kept coarser than the person's
 
 
-def frame_features(image: np.ndarray, person: PersonInPhoto | None, garment: str,
+def frame_features(image: np.ndarray | None, person: PersonInPhoto | None, garment: str,
                    box: tuple[int, int, int, int] | None = None) -> tuple[dict[str, np.ndarray], tuple]:
     """The frame's features: `person` as found in `image` (its working picture), or None
     (nothing found: empty masks and keypoints in the crop around `box`, which must then be
-    given). Keys: found, crop (x0, y0, side px), mask_bits, found_garment_bits, keypoints
+    given; `image` is not needed). Keys: found, crop (x0, y0, side px), mask_bits, found_garment_bits, keypoints
     (float16 [33,2]), visibility (float16 [33]); and the crop (x0, y0, side) itself."""
     if person is None:
         if box is None:

@@ -317,7 +317,7 @@ def read_video_motion(source, shape, fps: float = 15.0, start_s: float = 0.0, en
     import time
 
     t0 = time.perf_counter()
-    frames = read_frames(source, fps=fps, folder_fps=folder_fps)
+    frames = read_frames(source, fps=fps, folder_fps=folder_fps, start_s=start_s, end_s=end_s)
     keep = [k for k, t in enumerate(frames.times) if t >= start_s - 1e-9 and (end_s is None or t <= end_s + 1e-9)]
     if len(keep) < min_frames:
         raise TryonError(f"{source}: {len(keep)} frames between {start_s:g} s and "

@@ -44,10 +44,12 @@ def _step(rate: float, fps: float) -> int:
 
 
 def read_frames(source: str | Path, fps: float = 5.0, max_frames: int | None = None,
-                folder_fps: float = 5.0) -> Frames:
+                folder_fps: float = 5.0, start_s: float = 0.0, end_s: float | None = None) -> Frames:
     """The frames of `source` (a video file, or a folder of pictures taken `folder_fps`
     apart, in name order) at about `fps` frames a second (every k-th source frame, so
-    they stay evenly spaced: `Frames.fps` is the rate they have), at most `max_frames`."""
+    they stay evenly spaced: `Frames.fps` is the rate they have), at most `max_frames`,
+    from `start_s` to `end_s` of the source (times stay the source's); frames outside
+    are not decoded."""
     path = Path(source)
     if not fps > 0 or not folder_fps > 0:
         raise TryonError(f"frame rates must be positive, got {fps} and {folder_fps} per second")
@@ -57,14 +59,18 @@ def read_frames(source: str | Path, fps: float = 5.0, max_frames: int | None = N
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in PICTURE_SUFFIXES)
         if not files:
             raise InputFileError(f"{path}: the folder holds no pictures ({', '.join(PICTURE_SUFFIXES)})")
-        idx = list(range(0, len(files), _step(folder_fps, fps)))[:max_frames]
+        idx = [i for i in range(0, len(files), _step(folder_fps, fps))
+               if i / folder_fps >= start_s - 1e-9 and (end_s is None or i / folder_fps <= end_s + 1e-9)][:max_frames]
+        if not idx:
+            raise InputFileError(f"{path}: no frames between {start_s:g} s and {end_s} s")
         return Frames([load_photo(files[i]) for i in idx], np.asarray(idx) / folder_fps, str(path))
     if not path.exists():
         raise InputFileError(f"{path}: no such video file or folder of frames")
-    return _read_video(path, fps, max_frames)
+    return _read_video(path, fps, max_frames, start_s, end_s)
 
 
-def _read_video(path: Path, fps: float, max_frames: int | None) -> Frames:
+def _read_video(path: Path, fps: float, max_frames: int | None, start_s: float = 0.0,
+                end_s: float | None = None) -> Frames:
     import cv2
 
     cap = cv2.VideoCapture(str(path))
@@ -76,9 +82,11 @@ def _read_video(path: Path, fps: float, max_frames: int | None) -> Frames:
         step = _step(rate, fps)
         images, times, i = [], [], 0
         while max_frames is None or len(images) < max_frames:
+            if end_s is not None and i / rate > end_s + 1e-9:
+                break
             if not cap.grab():
                 break
-            if i % step == 0:
+            if i % step == 0 and i / rate >= start_s - 1e-9:
                 ok, frame = cap.retrieve()
                 if not ok or frame is None:
                     break  # a frame that cannot be decoded ends the clip: the kept ones stay evenly spaced
@@ -88,7 +96,8 @@ def _read_video(path: Path, fps: float, max_frames: int | None) -> Frames:
     finally:
         cap.release()
     if not images:
-        raise InputFileError(f"{path}: the video has no frames that can be decoded")
+        raise InputFileError(f"{path}: the video has no frames that can be decoded"
+                             + (f" from {start_s:g} s" if start_s > 0 else ""))
     return Frames(images, np.asarray(times), str(path))
 
 
