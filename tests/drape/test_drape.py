@@ -137,7 +137,7 @@ def test_viewer_draws_the_garment_in_headless_chromium(drape_dir, tmp_path):
     status = screenshot_viewer(viewer, tmp_path / "plain.png", mode="plain")
     assert status.startswith("ready"), status
     img = _picture(tmp_path / "plain.png")
-    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    r, b = img[..., 0], img[..., 2]
     # the garment in its fabric's colour, shaded: the same chromaticity, darker than the page
     cloth = np.asarray(meta["colors"]["cloth"], float)
     rgb = img[..., :3].astype(float)

@@ -92,10 +92,8 @@ def test_panel_xy_inverts_the_material_frame():
 
 
 def test_subdivided_faces_cover_the_same_surface_once():
-    rng = np.random.default_rng(1)
     x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.3], [2, 0, 0]], float)
     faces = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 3]])
-    corner_uv = x[faces][..., :2] + rng.normal(0, 0.01, (3, 3, 2))
     for ids, n in (([0], 1), ([0, 1], 4), ([0, 1, 2], 3)):
         face_of, bary, out, new = subdivide_faces(faces, np.array(ids), len(x), n)
         pts = np.concatenate([x, np.einsum("pk,pkd->pd", bary, x[faces[face_of]])])

@@ -37,6 +37,25 @@ def test_a_fabric_drawn_in_a_class_is_of_that_class_and_the_draw_repeats():
     assert len(densities) > 2
 
 
+def test_a_class_centre_fabric_sits_at_the_centre_on_the_nearest_measured_base():
+    classes = default_classes()
+    for c in (0, 22, 53):
+        centre = np.array(classes.centre(c))
+        ranked = classes.nearest_measured(c, count=len(MEASURED_FABRICS))
+        assert sorted(ranked) == sorted(MEASURED_FABRICS) and ranked[0] == classes.nearest_measured(c)
+        spans = np.array([classes.stretch_edges[-1] - classes.stretch_edges[0],
+                          classes.bend_edges[-1] - classes.bend_edges[0]])
+        away = [np.linalg.norm((np.array(classes.position(WangFabric.from_preset(n))) - centre) / spans) for n in ranked]
+        assert away == sorted(away)
+        fabric = classes.centre_fabric(c)
+        assert classes.position(fabric) == pytest.approx(tuple(centre), abs=1e-5) and classes.class_of(fabric) == c
+        base = WangFabric.from_preset(ranked[0])
+        assert float(fabric.density) == pytest.approx(float(base.density))  # what the class does not fix: the base's
+        other = classes.centre_fabric(c, base="11oz-black-denim")
+        assert classes.position(other) == pytest.approx(tuple(centre), abs=1e-5)
+        assert float(other.density) == pytest.approx(float(WangFabric.from_preset("11oz-black-denim").density))
+
+
 def test_fabrics_beyond_the_range_fall_in_the_outer_bins_and_bad_input_is_named():
     classes = FabricClasses((2.0, 2.5, 3.0), (-4.8, -4.3, -3.8))
     stiff = WangFabric.from_preset("paper")  # a stiff isotropic sheet, far beyond the cloth

@@ -435,7 +435,7 @@ def _cmd_fabrics(args: argparse.Namespace) -> int:
 
 
 BENCHES = ["sim", "robustness", "drape", "grad", "parallel", "learned", "ablations", "fidelity", "fit-fabric", "print", "kdsm",
-           "size", "anthropometry", "body", "serve"]
+           "size", "anthropometry", "body", "serve", "perceive"]
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -531,6 +531,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from tryon.bench.fidelity import run_fidelity_bench
 
         run_fidelity_bench(args.json, reference=args.reference)
+        return 0
+    if args.what == "perceive":
+        from tryon.bench.perceive import CHAPTER_FABRICS, run_perceive_bench
+
+        quick = args.quick
+        run_perceive_bench(args.json, clips=args.data, model_path=args.model,
+                           presets=CHAPTER_FABRICS[:1] if quick else CHAPTER_FABRICS, per_fabric=1 if quick else 2,
+                           limit=1 if quick else None)
         return 0
     if args.what == "fit-fabric":
         from tryon.bench.fit_fabric import HELD_OUT, run_fit_fabric_bench
@@ -750,8 +758,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="serve: seconds of load with a worker killed, then with the server restarted, halfway")
     b.add_argument("--data", help="learned, print: the drape dataset whose test splits are judged (learned: default "
                                   "the shipped model's held-out drapes); kdsm: the pose dataset; body: the photo "
-                                  "dataset (default data/bodies-v1)")
-    b.add_argument("--model", help="learned, size: a model file instead of the shipped one")
+                                  "dataset (default data/bodies-v1); perceive: held-out clips (default: clips of "
+                                  "the chapter's five measured fabrics, made next to --json)")
+    b.add_argument("--model", help="learned, size: a model file instead of the shipped one; perceive: an image-only "
+                                   "fabric classifier (default: the true class, what a right classifier gives)")
     b.add_argument("--per-split", type=int, metavar="N",
                    help="learned: judge at most N drapes of each held-out split, evenly spread (refinement takes seconds each)")
     b.add_argument("--models", nargs="+", help="kdsm: trained models to judge (tryon train kdsm; models of one method "

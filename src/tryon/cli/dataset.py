@@ -90,7 +90,8 @@ def _cmd_dataset_clips(args: argparse.Namespace) -> int:
     genders = args.genders or (["female"] if args.garment in ("skirt", "dress") else ["female", "male"])
     spec = ClipDatasetSpec(garment=args.garment, sizes=tuple(args.sizes), count=args.count, edge_length=args.edge_length,
                            frames=args.frames, fps=args.fps, motions=tuple(args.motions), seed=args.seed,
-                           ranges=BodyRanges(genders=tuple(genders), bmi=tuple(args.bmi)), shard_size=args.shard_size)
+                           ranges=BodyRanges(genders=tuple(genders), bmi=tuple(args.bmi)), shard_size=args.shard_size,
+                           presets=tuple(args.presets or ()))
     spec.validate()
     check_output_dir(args.out, force=args.force)
     store, report = make_clip_dataset(spec, args.out, workers=args.workers, ray_address=args.ray_address,
@@ -205,6 +206,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--bmi", type=float, nargs=2, default=[17.0, 38.0], metavar=("LOW", "HIGH"), help="BMI range (uniform)")
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--shard-size", type=int, default=32, help="clips per shard file")
+    c.add_argument("--presets", nargs="+", metavar="FABRIC",
+                   help="measured fabrics taken in turn as measured, instead of fabrics drawn inside the classes "
+                        "(held-out clips for tryon bench perceive)")
     _generator_args(c)
     c.set_defaults(func=_cmd_dataset_clips)
     k = kinds.add_parser("pack", help="a compact copy (float16 garment vertices) to keep in version control; "

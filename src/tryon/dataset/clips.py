@@ -11,6 +11,8 @@ fit model (`drapes.build_references`, shared by every clip of the size), draped 
 body as `tryon drape` does (in the clip's fabric), then the body blends from the A-pose
 into the motion and the garment follows (`tryon.drape.animate.garment_motion_scene`).
 The clip is `frames` frames at `fps` after the blend (the chapter's clips: 25 at 5 fps).
+A dataset that names measured fabrics (`presets`) takes them in turn exactly as measured
+instead: the held-out clips `tryon bench perceive` judges on.
 
 Stored per clip: the garment's vertices per frame (float32, metres) and at rest before
 the motion, the frame times, the fabric class with the fabric's features and data, the
@@ -41,6 +43,7 @@ from tryon.drape.animate import GarmentAtRest, garment_motion_scene
 from tryon.drape.pipeline import DrapeRequest, drape_pose, simulate_drape
 from tryon.errors import TryonError
 from tryon.fabric.blend import fabric_features
+from tryon.fabric.wang2011 import MEASURED_FABRICS, WangFabric
 from tryon.garment.drafts import GARMENTS
 from tryon.garment.sizes import SIZES
 from tryon.perceive.fabric_classes import FabricClasses, default_classes
@@ -68,6 +71,7 @@ class ClipDatasetSpec:
     reference_fabric: str = "gray-interlock"  # what the sizes are dressed in on their fit models
     topology: tuple[str, str] = ("female", "M")
     shard_size: int = 32
+    presets: tuple[str, ...] = ()  # measured fabrics taken in turn as measured, instead of fabrics drawn in classes
     train_fraction: float = 0.8
     val_fraction: float = 0.1
 
@@ -91,6 +95,9 @@ class ClipDatasetSpec:
             raise TryonError(f"motions {list(self.motions)}: use some of {', '.join(BUILTIN_MOTIONS)}")
         if not 1 <= self.shard_size <= 4096:
             raise TryonError(f"shard size {self.shard_size} is outside 1-4096 samples")
+        bad = [p for p in self.presets if p not in MEASURED_FABRICS]
+        if bad:
+            raise TryonError(f"--presets {bad}: clips on measured fabrics take some of {', '.join(MEASURED_FABRICS)}")
 
     def manifest(self, software_version: str, classes: FabricClasses | None = None) -> Manifest:
         self.validate()
@@ -102,6 +109,8 @@ class ClipDatasetSpec:
                 "topology": {"gender": self.topology[0], "size": self.topology[1]},
                 "fabric_classes": {k: v for k, v in classes.to_dict().items() if k != "provenance"},
                 "drape": {"max_settle_time": 1.0}}
+        if self.presets:  # only then: the manifests of class-drawn datasets stay as they were
+            spec["presets"] = list(self.presets)
         split = {"rule": "by body: train / val / test drawn per body from the seed", "train": self.train_fraction,
                  "val": self.val_fraction, "extrapolation_bmi": None}
         return Manifest(KIND, GENERATOR_VERSION, software_version, self.seed, self.count, self.shard_size, spec, split,
@@ -129,7 +138,13 @@ def clip_motion(manifest: Manifest, unit: int) -> tuple[BodyMotion, dict[str, np
 
 
 def clip_fabric(manifest: Manifest, unit: int):
+    """The unit's fabric class and fabric: a measured fabric in turn when the dataset names
+    some (`presets`), else a fabric drawn inside class unit % 54."""
     classes = FabricClasses.from_dict(manifest.spec["fabric_classes"])
+    presets = manifest.spec.get("presets")
+    if presets:
+        fabric = WangFabric.from_preset(presets[unit % len(presets)])
+        return classes.class_of(fabric), fabric
     c = unit % classes.count
     fabric = classes.sample_fabric(c, np.random.default_rng([manifest.seed, unit, 17]))
     return c, fabric

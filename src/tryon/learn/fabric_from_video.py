@@ -19,8 +19,6 @@ import numpy as np
 import torch
 
 from tryon.errors import TryonError
-from tryon.fabric.blend import scaled_stiffness
-from tryon.fabric.presets import mean_preset_fabric
 from tryon.fabric.wang2011 import WangFabric
 from tryon.perceive.fabric_classes import FabricClasses, default_classes
 from tryon.perceive.frame_features import frame_features
@@ -46,18 +44,6 @@ class Perceived:
     @property
     def fabric_class(self) -> int | None:
         return None if self.probabilities is None else int(self.probabilities.argmax())
-
-
-def class_fabric(classes: FabricClasses, c: int, base: WangFabric | None = None) -> WangFabric:
-    """A fabric at the centre of class c: `base` (the mean measured fabric) with its
-    stiffness scaled there."""
-    base = base or mean_preset_fabric()
-    (s0, s1), (b0, b1) = classes.box(c)
-    s, b = classes.position(base)
-    fabric = scaled_stiffness(base, 10.0 ** ((s0 + s1) / 2 - s), 10.0 ** ((b0 + b1) / 2 - b),
-                              name=f"class-{classes.name(c)}")
-    fabric.composition = f"the mean measured fabric scaled to the centre of fabric class {classes.name(c)}"
-    return fabric
 
 
 def classifier_inputs(features: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -138,14 +124,8 @@ def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier
         out.notes.append("no fabric classifier given (--classifier): the class is not named; none is shipped yet")
         return out
     out.probabilities = classify(model, features)
-    out.fabric = class_fabric(out.classes, out.fabric_class)
+    out.fabric = out.classes.centre_fabric(out.fabric_class)
     return out
-
-
-def nearest_presets(classes: FabricClasses, c: int, count: int = 3) -> list[str]:
-    """The measured fabrics whose classes lie nearest class c (bins apart, then name)."""
-    of = classes.preset_classes()
-    return sorted(of, key=lambda n: (classes.distance(of[n], c), n))[:count]
 
 
 def frames_picture(p: Perceived, count: int = 6) -> np.ndarray:
@@ -193,7 +173,7 @@ def write_perceived(p: Perceived, out: Path) -> dict:
         report["fabric"] = {"class": p.classes.name(c), "probability": float(p.probabilities[c]),
                             "top": [{"class": p.classes.name(int(k)), "probability": float(p.probabilities[k])}
                                     for k in top],
-                            "nearest_presets": nearest_presets(p.classes, c), "file": "fabric.json"}
+                            "nearest_presets": p.classes.nearest_measured(c, 3), "file": "fabric.json"}
         with (out / "fabric.json").open("w") as fh:
             fh.write(json.dumps(p.fabric.to_arcsim_dict(), indent=1))
     with (out / "report.json").open("w") as fh:

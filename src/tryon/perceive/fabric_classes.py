@@ -28,7 +28,7 @@ import numpy as np
 
 from tryon.errors import FabricError
 from tryon.fabric.base import Fabric
-from tryon.fabric.blend import fabric_features
+from tryon.fabric.blend import fabric_features, scaled_stiffness
 from tryon.fabric.wang2011 import MEASURED_FABRICS, WangFabric
 from tryon.io.json_safe import write_json
 
@@ -111,6 +111,31 @@ class FabricClasses:
         fabric.name = f"{base_name}@{self.name(c)}"
         fabric.composition = f"{base_name} scaled into fabric class {self.name(c)}"
         return fabric
+
+    def centre(self, c: int) -> tuple[float, float]:
+        """(log10 stretching, log10 bending) at the middle of class c's box."""
+        (s0, s1), (b0, b1) = self.box(c)
+        return (s0 + s1) / 2, (b0 + b1) / 2
+
+    def nearest_measured(self, c: int, count: int | None = None) -> str | list[str]:
+        """The measured fabric nearest the centre of class c (each axis in units of its whole
+        range); with `count`, that many, nearest first."""
+        spans = np.array([self.stretch_edges[-1] - self.stretch_edges[0], self.bend_edges[-1] - self.bend_edges[0]])
+        centre = np.array(self.centre(c))
+        away = {n: float(np.linalg.norm((np.array(self.position(WangFabric.from_preset(n))) - centre) / spans))
+                for n in MEASURED_FABRICS}
+        ranked = sorted(away, key=lambda n: (away[n], n))
+        return ranked[0] if count is None else ranked[:count]
+
+    def centre_fabric(self, c: int, base: str | None = None) -> WangFabric:
+        """A fabric at the centre of class c: the measured fabric `base` (the nearest one by
+        default: its density, anisotropy and non-linearity) with its stiffness scaled there."""
+        base = base or self.nearest_measured(c)
+        fabric = WangFabric.from_preset(base)
+        (s, b), (s_base, b_base) = self.centre(c), self.position(fabric)
+        out = scaled_stiffness(fabric, 10.0 ** (s - s_base), 10.0 ** (b - b_base), name=f"{base}@{self.name(c)}")
+        out.composition = f"{base} with its stiffness scaled to the centre of fabric class {self.name(c)}"
+        return out
 
     def preset_classes(self) -> dict[str, int]:
         """The class of each measured fabric."""

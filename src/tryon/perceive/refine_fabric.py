@@ -1,22 +1,26 @@
 """The simulator refines a fabric class into a fabric (fabric from video, item 4): the
-stretching and bending scales that make the simulated garment follow the observed one.
+stretching stiffness that makes the simulated garment follow the observed one.
 
 A class says where a fabric lies on the two axes of `fabric_classes` (log10 stretching and
-bending stiffness) to within a bin. The refinement starts at the class's centre and moves
-the two log10 scales of a base fabric (the mean measured fabric unless told) by
-Levenberg-Marquardt: the residual is the simulated minus the observed garment over the
-clip's frames (per vertex, over the garment's size), its Jacobian taken by forward
-differences (two simulations; the scales are two numbers, so differences cost what
-adjoints would and need no taped contact-rich steps). Each trial is a simulation of the
-clip from its first observed frame with the body moving as observed.
+bending stiffness) to within a bin. How well a simulated clip follows the observed garment
+(the misfit: mean vertex distance over the garment's size, over the clip's frames) is a
+sharp V in the stretching stiffness, with its minimum at the truth, and nearly flat in
+bending (docs/FABRIC_FROM_VIDEO.md has the grid). So the refinement searches stretching
+alone, by bracketing: a grid across the class's stretching range, then golden section
+inside the best grid point's neighbours, keeping the best simulation seen (contact makes
+the misfit rough at small steps, which is why local quadratic models stop early on it).
+Bending stays at the class's centre, reported as unobserved. Before that the base fabric
+(density, anisotropy and non-linearity, which the class does not fix) is chosen: each
+measured fabric scaled to the class's centre is simulated, and the one that follows best
+is kept.
 
-`refine_scales` is the search over any `simulate(stretch_log10, bend_log10) -> frames`
-(`tryon.fabric.blend.scaled_stiffness` scales a fabric by 10 to those powers);
-`ClipToRefine` and `refine_clip_fabric` give it a garment on a moving body.
+`search_scale` is the search over any misfit of one number; `ClipToRefine` and
+`refine_clip_fabric` give it a garment on a moving body.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -26,100 +30,74 @@ import torch
 
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric.blend import scaled_stiffness
-from tryon.fabric.wang2011 import WangFabric
+from tryon.fabric.wang2011 import MEASURED_FABRICS, WangFabric
+from tryon.perceive.fabric_classes import FabricClasses
 
-FD_STEP = 0.02       # log10 units: a 4.7 % change of a stiffness
-DAMPING = 1e-2       # Levenberg-Marquardt damping at the start, relative to diag(J^T J)
-TRIALS = 3           # trial steps per iteration, the damping raised 8x after each that fails
+GRID_POINTS = 5      # simulations spread over the stretching range, its ends included
+GOLDEN_STEPS = 4     # simulations of the golden-section search inside the best grid point's neighbours
+INVERSE_PHI = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @dataclass
 class Refinement:
-    """The refined log10 scales (relative to the base fabric), the fabric, and how it went."""
+    """The refined fabric: its log10 stiffness on the class axes, the log10 scales applied
+    to the base fabric, and how the search went (one row per simulation)."""
 
-    stretch_log10: float
-    bend_log10: float
+    stretch_log10: float        # log10 N/m at 16 % strain (the class axis)
+    bend_log10: float           # log10 N m, the class's centre: a clip does not show it
     fabric: WangFabric
-    error_start: float          # mean vertex distance / garment size at the start
-    error: float                # ... at the refined scales
+    base: str                   # the measured fabric that followed best at the class's centre
+    base_errors: dict[str, float]  # each base's misfit at the class's centre
+    error_centre: float         # the chosen base's misfit at the class's centre
+    error: float                # misfit at the refined stretching
     simulations: int
     seconds: float
     history: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
-def refine_scales(simulate: Callable[[float, float], np.ndarray], observed: np.ndarray, start: tuple[float, float],
-                  bounds: tuple[tuple[float, float], tuple[float, float]], iterations: int = 3,
-                  size: float | None = None, progress: Callable[[str], None] | None = None
-                  ) -> tuple[np.ndarray, float, list[dict]]:
-    """Levenberg-Marquardt on theta = (stretch_log10, bend_log10) inside `bounds`, the
-    residual (simulate(theta) - observed)[1:] / size. Returns theta, its error (mean
-    vertex distance / size) and the history (one row per simulation: theta, error). A
-    simulation that fails counts as no better; a difference probe that beats the current
-    scales is taken."""
-    observed = np.asarray(observed, dtype=np.float64)
-    if observed.ndim != 3 or len(observed) < 2:
-        raise TryonError(f"the observed garment needs at least 2 frames of [N, 3] points, got {observed.shape}")
-    size = size or float(np.linalg.norm(observed[0].max(0) - observed[0].min(0)))
-    if not size > 0:
-        raise TryonError("the observed garment has no extent (its first frame is a single point)")
-    lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
-    history: list[dict] = []
+def search_scale(misfit: Callable[[float], float], bounds: tuple[float, float], grid: int = GRID_POINTS,
+                 golden: int = GOLDEN_STEPS) -> tuple[float, float, list[tuple[float, float]]]:
+    """The x in `bounds` with the smallest misfit(x): `grid` points across the range, then
+    `golden` golden-section points inside the best one's neighbours. Returns the best x
+    seen, its misfit, and every (x, misfit) in the order tried. A misfit of inf (a failed
+    simulation) is never best; all failing is an error."""
+    lo, hi = float(bounds[0]), float(bounds[1])
+    if not hi > lo or grid < 2:
+        raise TryonError(f"the search needs a range that rises and at least 2 grid points, got {bounds}, {grid}")
+    seen: list[tuple[float, float]] = []
 
-    def residual(theta: np.ndarray) -> np.ndarray | None:
-        try:
-            x = np.asarray(simulate(float(theta[0]), float(theta[1])), dtype=np.float64)
-        except SimulationError:
-            x = None
-        if x is None or x.shape != observed.shape or not np.isfinite(x).all():
-            history.append({"theta": theta.tolist(), "error": None})
-            return None
-        r = (x[1:] - observed[1:]) / size
-        history.append({"theta": theta.tolist(), "error": float(np.linalg.norm(r, axis=-1).mean())})
-        if progress:
-            progress(f"simulation {len(history)}: scales {theta[0]:+.3f} {theta[1]:+.3f} -> error {history[-1]['error']:.4f}")
-        return r.ravel()
+    def at(x: float) -> float:
+        seen.append((x, float(misfit(x))))
+        return seen[-1][1]
 
-    theta = np.clip(np.asarray(start, dtype=np.float64), lo, hi)
-    r = residual(theta)
-    if r is None:
-        raise TryonError(f"the simulation fails at the start scales {theta.tolist()}; nothing to refine from")
-    loss = float(r @ r)
-    damping = DAMPING
-    for _ in range(iterations):
-        J = np.zeros((len(r), 2))
-        probes = []
-        for k in range(2):
-            step = FD_STEP if theta[k] + FD_STEP <= hi[k] else -FD_STEP
-            t = theta.copy()
-            t[k] += step
-            rk = residual(t)
-            if rk is None:
-                continue
-            J[:, k] = (rk - r) / step
-            probes.append((float(rk @ rk), t, rk))
-        A, g = J.T @ J, J.T @ r
-        if not np.any(np.diag(A) > 0):
-            break
-        improved = False
-        for _ in range(TRIALS):
-            delta = np.linalg.solve(A + damping * np.diag(np.maximum(np.diag(A), 1e-12)), -g)
-            trial = np.clip(theta + delta, lo, hi)
-            if np.allclose(trial, theta, atol=1e-4):
-                break
-            rt = residual(trial)
-            if rt is not None and float(rt @ rt) < loss:
-                theta, r, loss = trial, rt, float(rt @ rt)
-                damping = max(damping / 4, 1e-4)
-                improved = True
-                break
-            damping *= 8
-        best_probe = min(probes, key=lambda p: p[0], default=None)
-        if best_probe is not None and best_probe[0] < loss:
-            loss, theta, r = best_probe
-            improved = True
-        if not improved:
-            break
-    return theta, float(np.linalg.norm(r.reshape(-1, 3), axis=-1).mean()), history
+    xs = np.linspace(lo, hi, grid)
+    errors = [at(float(x)) for x in xs]
+    if not np.isfinite(errors).any():
+        raise TryonError(f"every simulation across {lo:.3f}..{hi:.3f} failed; nothing to refine")
+    i = int(np.argmin(errors))
+    a, b = float(xs[max(i - 1, 0)]), float(xs[min(i + 1, grid - 1)])
+    c, d = b - INVERSE_PHI * (b - a), a + INVERSE_PHI * (b - a)
+    fc = at(c) if golden >= 1 else math.inf
+    fd = at(d) if golden >= 2 else math.inf
+    for _ in range(golden - 2):
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - INVERSE_PHI * (b - a)
+            fc = at(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + INVERSE_PHI * (b - a)
+            fd = at(d)
+    best = min(seen, key=lambda s: s[1])
+    return best[0], best[1], seen
+
+
+def misfit(simulated: np.ndarray | None, observed: np.ndarray, size: float) -> float:
+    """Mean vertex distance over frames 1.. divided by `size`; inf for a missing or broken simulation."""
+    if simulated is None or simulated.shape != observed.shape or not np.isfinite(simulated).all():
+        return math.inf
+    return float(np.linalg.norm(simulated[1:] - observed[1:], axis=-1).mean() / size)
 
 
 @dataclass
@@ -143,6 +121,11 @@ class ClipToRefine:
     friction: float
     dt: float = 0.01
 
+    @property
+    def size(self) -> float:
+        """The garment's extent in its first frame (the misfit's unit)."""
+        return float(np.linalg.norm(self.observed[0].max(0) - self.observed[0].min(0)))
+
     def simulate(self, fabric: WangFabric) -> np.ndarray:
         """The garment simulated from frame 0 at rest in `fabric`: [F,N,3] at the frame times."""
         from tryon.drape.animate import GarmentAtRest, garment_motion_scene
@@ -161,6 +144,16 @@ class ClipToRefine:
         if np.abs(times[idx] - want).max() > 0.25 * self.frame_time:
             raise TryonError("the refinement's simulation recorded no frame near an observed one")
         return np.asarray(result.positions)[idx]
+
+    def misfit(self, fabric: WangFabric) -> float:
+        """How far the garment simulated in `fabric` is from the observed one (inf if the simulation fails)."""
+        if len(self.observed) < 2 or not self.size > 0:
+            raise TryonError(f"the observed garment needs at least 2 frames with extent, got {self.observed.shape}")
+        try:
+            simulated = self.simulate(fabric)
+        except SimulationError:
+            simulated = None
+        return misfit(simulated, self.observed, self.size)
 
 
 def motion_after(motion, shape, t0: float, duration: float, fps: float = 30.0):
@@ -182,20 +175,50 @@ def motion_after(motion, shape, t0: float, duration: float, fps: float = 30.0):
     return moved, start, offset
 
 
-def refine_clip_fabric(clip: ClipToRefine, start: tuple[float, float], bounds, base: WangFabric | None = None,
-                       iterations: int = 3, progress: Callable[[str], None] | None = None) -> Refinement:
-    """The fabric whose simulation follows `clip` best, from `start` (log10 scales of
-    `base`, the mean measured fabric by default) within `bounds`."""
-    from tryon.fabric.presets import mean_preset_fabric
-
-    base = base or mean_preset_fabric()
+def refine_clip_fabric(clip: ClipToRefine, classes: FabricClasses, c: int, bases: tuple[str, ...] = MEASURED_FABRICS,
+                       bounds: tuple[float, float] | None = None, grid: int = GRID_POINTS, golden: int = GOLDEN_STEPS,
+                       progress: Callable[[str], None] | None = None) -> Refinement:
+    """The fabric of class c whose simulation follows `clip` best. First the base: each
+    measured fabric of `bases` at the class's centre, the one that follows best kept (its
+    density, anisotropy and non-linearity: what the class does not say). Then its
+    stretching, searched over `bounds` (the class's stretching range by default) with the
+    bending at the class's centre."""
+    if not bases:
+        raise TryonError("the refinement needs at least one measured fabric to start from")
+    (s0, s1), (b0, b1) = classes.box(c)
+    bounds = bounds or (s0, s1)
+    centre, bend = (s0 + s1) / 2, (b0 + b1) / 2
     t0 = time.perf_counter()
+    history: list[dict] = []
 
-    def fabric(s: float, b: float) -> WangFabric:
-        return scaled_stiffness(base, 10.0 ** s, 10.0 ** b, name="refined")
+    def fabric(base: str, s: float) -> WangFabric:
+        f = WangFabric.from_preset(base)
+        s_base, b_base = classes.position(f)
+        return scaled_stiffness(f, 10.0 ** (s - s_base), 10.0 ** (bend - b_base), name=f"{base}-refined")
+
+    def trial(base: str, s: float) -> float:
+        error = clip.misfit(fabric(base, s))
+        history.append({"base": base, "stretch_log10": s, "error": None if math.isinf(error) else error})
+        if progress:
+            progress(f"simulation {len(history)}: {base} at stretching 10^{s:.3f} N/m -> misfit {error:.5f}")
+        return error
 
     with torch.no_grad():
-        theta, error, history = refine_scales(lambda s, b: clip.simulate(fabric(s, b)), clip.observed, start, bounds,
-                                              iterations, progress=progress)
-    return Refinement(float(theta[0]), float(theta[1]), fabric(*theta), float(history[0]["error"]), error,
-                      len(history), time.perf_counter() - t0, history)
+        at_centre = {base: trial(base, centre) for base in bases}
+        base = min(at_centre, key=lambda b: (at_centre[b], b))
+        if math.isinf(at_centre[base]):
+            raise TryonError(f"every simulation at the centre of class {classes.name(c)} failed; nothing to refine")
+        s, error, _ = search_scale(lambda x: at_centre[base] if math.isclose(x, centre, abs_tol=1e-9)
+                                   else trial(base, x), bounds, grid, golden)
+    if at_centre[base] <= error:
+        s, error = centre, at_centre[base]
+    refined = fabric(base, s)
+    refined.composition = (f"{base} with its stretching refined against a clip and its bending at the centre of "
+                           f"fabric class {classes.name(c)}")
+    notes = [f"bending kept at the centre of class {classes.name(c)} (10^{bend:.2f} N m): a clip's motion "
+             "hardly shows it"]
+    if s in bounds:
+        notes.append(f"the best stretching lies at the end of the searched range (10^{s:.3f} N/m): the fabric may "
+                     "be of a neighbouring class")
+    return Refinement(float(s), float(bend), refined, base, at_centre, at_centre[base], error, len(history),
+                      time.perf_counter() - t0, history, notes)
