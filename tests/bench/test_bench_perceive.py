@@ -14,8 +14,6 @@ from tryon.errors import TryonError
 from tryon.fabric.wang2011 import WangFabric
 from tryon.perceive.fabric_classes import default_classes
 
-pytestmark = [pytest.mark.anny, pytest.mark.slow]
-
 PRESETS = ("gray-interlock", "11oz-black-denim")
 
 
@@ -33,6 +31,8 @@ def test_clips_on_measured_fabrics_take_them_in_turn_as_measured():
         ClipDatasetSpec(presets=("no-such-cloth",)).validate()
 
 
+@pytest.mark.anny
+@pytest.mark.slow
 def test_the_bench_judges_the_class_and_the_refinement_on_each_clip(tmp_path):
     spec = ClipDatasetSpec(garment="tshirt", sizes=("M",), count=2, edge_length=0.04, frames=4, fps=5.0, shard_size=2,
                            presets=PRESETS, seed=1, ranges=BodyRanges(genders=("female",), bmi=(20.0, 26.0)))

@@ -10,7 +10,9 @@ import pytest
 from tryon.errors import FabricError, TryonError
 from tryon.fabric.blend import fabric_features, scaled_stiffness
 from tryon.fabric.presets import mean_preset_fabric
-from tryon.perceive.refine_fabric import GOLDEN_STEPS, GRID_POINTS, misfit, search_scale
+from tryon.fabric.wang2011 import MEASURED_FABRICS
+from tryon.perceive.fabric_classes import default_classes
+from tryon.perceive.refine_fabric import GOLDEN_STEPS, GRID_POINTS, misfit, refine_clip_fabric, search_scale
 
 
 def scaled_fabric(base, s, b):
@@ -30,11 +32,11 @@ def test_the_search_finds_the_bottom_of_a_rough_v_and_keeps_the_best_seen():
     rng = np.random.default_rng(3)
     bumps = rng.uniform(0, 0.02, 64)
 
-    def misfit(x):  # a V at 0.37 with roughness a tenth of the slope's rise over a grid step
-        return abs(x - 0.37) + bumps[int(abs(x) * 1000) % 64] * 0.1
+    def misfit(x):  # a V at 0.37 with bumps up to a tenth of its rise over a grid step (0.25)
+        return abs(x - 0.37) + bumps[int(abs(x) * 1000) % 64] * 1.25
 
     x, error, seen = search_scale(misfit, (0.0, 1.0))
-    assert len(seen) == GRID_POINTS + GOLDEN_STEPS and x == pytest.approx(0.37, abs=0.04)
+    assert len(seen) == GRID_POINTS + GOLDEN_STEPS and x == pytest.approx(0.37, abs=0.06)
     assert error == min(e for _, e in seen) and (x, error) in seen
     assert [s for s, _ in seen[:GRID_POINTS]] == pytest.approx(np.linspace(0, 1, GRID_POINTS).tolist())
     # more golden steps narrow it further; the answer at a range's end is found there
@@ -57,6 +59,58 @@ def test_failed_simulations_are_never_best_and_all_failing_is_named():
     moved = observed.copy()
     moved[1:, :, 0] = 0.2  # frame 0 is where both start: only later frames count
     assert misfit(moved, observed, 2.0) == pytest.approx(0.1)
+
+
+class FakeClip:
+    """A clip whose misfit is known: a V in the stretching at `target`, lowest for one base."""
+
+    def __init__(self, target, base, fail_below=None):
+        self.target, self.base, self.fail_below, self.calls = target, base, fail_below, 0
+
+    def misfit(self, fabric):
+        self.calls += 1
+        s = default_classes().position(fabric)[0]
+        if self.fail_below is not None and s < self.fail_below:
+            return math.inf
+        return abs(s - self.target) + (0.0 if fabric.name.startswith(self.base + "-") else 0.05)
+
+
+def test_the_refinement_picks_the_base_then_the_stretching_inside_the_class():
+    classes = default_classes()
+    c = classes.index(3, 4)
+    (s0, s1), (b0, b1) = classes.box(c)
+    target = s0 + 0.3 * (s1 - s0)
+    clip = FakeClip(target, "tango-red-jet-set")
+    r = refine_clip_fabric(clip, classes, c)
+    assert r.base == "tango-red-jet-set" and set(r.base_errors) == set(MEASURED_FABRICS)
+    assert r.stretch_log10 == pytest.approx(target, abs=0.1 * (s1 - s0))
+    assert r.bend_log10 == pytest.approx((b0 + b1) / 2) and classes.class_of(r.fabric) == c
+    # the centre is simulated once for each base and reused by the grid
+    assert r.simulations == clip.calls == len(MEASURED_FABRICS) + GRID_POINTS - 1 + GOLDEN_STEPS
+    assert r.error <= r.error_centre and len(r.notes) == 1 and "bending" in r.notes[0]
+    # a fabric beyond the class: the search stops at its edge, inside it, and says so
+    r = refine_clip_fabric(FakeClip(s1 + 0.5, "gray-interlock"), classes, c, bases=("gray-interlock", "paper"))
+    assert r.stretch_log10 == pytest.approx(s1, abs=0.01 * (s1 - s0)) and classes.class_of(r.fabric) == c
+    assert "neighbouring class" in r.notes[-1]
+
+
+def test_the_refinement_keeps_the_centre_when_the_rest_fails_and_names_what_it_cannot_do():
+    classes = default_classes()
+    c = classes.index(2, 2)
+    (s0, s1), _ = classes.box(c)
+    centre = (s0 + s1) / 2
+    # an even grid does not hold the centre: all its points fail (a step below the centre
+    # fails and so does the grid), and the centre, which did not, is kept
+    r = refine_clip_fabric(FakeClip(centre, "gray-interlock", fail_below=centre - 1e-6), classes, c,
+                           bases=("gray-interlock",), grid=4, golden=0,
+                           bounds=(s0, centre - 0.01 * (s1 - s0)))
+    assert r.stretch_log10 == pytest.approx(centre) and r.error == r.error_centre
+    with pytest.raises(TryonError, match="every simulation at the centre"):
+        refine_clip_fabric(FakeClip(centre, "gray-interlock", fail_below=s1 + 1), classes, c, bases=("gray-interlock",))
+    with pytest.raises(TryonError, match="at least one measured fabric"):
+        refine_clip_fabric(FakeClip(centre, "x"), classes, c, bases=())
+    with pytest.raises(TryonError, match="at least 2 grid points"):
+        refine_clip_fabric(FakeClip(centre, "x"), classes, c, grid=1)
 
 
 @pytest.mark.slow

@@ -50,19 +50,10 @@ def make_bench_clips(folder: Path, presets: tuple[str, ...], per_fabric: int, ga
     return folder
 
 
-def classifier_scores(model, sample: dict) -> np.ndarray:
-    """An image-only classifier's class probabilities on a clip's stored frames."""
-    import torch
-
-    from tryon.learn.fabric_from_video import check_image_only
-    from tryon.learn.fabric_video import frame_inputs
-
-    check_image_only(model, "the classifier")
-    masks, kp = frame_inputs(*(sample[f"frame_{k}"] for k in ("mask_bits", "found_garment_bits", "keypoints",
-                                                              "visibility")))
-    with torch.no_grad():
-        scores = model(torch.from_numpy(masks)[None], torch.from_numpy(kp)[None], torch.zeros(1, len(kp), 1))
-    return torch.softmax(scores, -1)[0].numpy()
+def stored_frames(sample: dict) -> list[dict]:
+    """A stored clip's frames as `tryon.perceive.frame_features` gives them (what the classifier reads)."""
+    keys = ("mask_bits", "found_garment_bits", "keypoints", "visibility")
+    return [{k: sample[f"frame_{k}"][t] for k in keys} for t in range(len(sample["frame_mask_bits"]))]
 
 
 def judge_clip(manifest, folder: Path, sample: dict, classes, model, frames: int, bases: tuple[str, ...],
@@ -77,7 +68,9 @@ def judge_clip(manifest, folder: Path, sample: dict, classes, model, frames: int
            "top1": None, "top3": None, "chamfer_cm": None}
     c = true_c
     if model is not None:
-        p = classifier_scores(model, sample)
+        from tryon.learn.fabric_from_video import classify
+
+        p = classify(model, stored_frames(sample))
         top = [int(k) for k in np.argsort(-p)[:3]]
         c = top[0]
         rec.update({"top1": float(c == true_c), "top3": float(true_c in top),
@@ -98,7 +91,7 @@ def mean_record(method: str, rows: list[dict]) -> dict:
         values = [r[key] for r in rows if r.get(key) is not None]
         return float(np.mean(values)) if values else None
 
-    keys = ("top1", "top3", "chamfer_cm", "stiffness_error_pct", "bending_error_pct", "refined_stiffness_error_pct",
+    keys = ("top1", "top3", "within_one_bin", "chamfer_cm", "stiffness_error_pct", "bending_error_pct", "refined_stiffness_error_pct",
             "seconds", "misfit_at_class_centre", "misfit_refined")
     out = {"method": method, "clip": "mean", "clips": len(rows), **{k: mean(k) for k in keys}}
     out["refined_better"] = int(sum(r["refined_stiffness_error_pct"] < r["stiffness_error_pct"] for r in rows))
@@ -121,7 +114,8 @@ def run_perceive_bench(json_path: str, clips: str | None = None, model_path: str
         model = load_classifier(model_path)[0]
         check_image_only(model, model_path)
         method = model.method
-    folder = Path(clips) if clips else make_bench_clips(Path(json_path).parent / "perceive-clips", presets, per_fabric)
+    made_here = Path(json_path).parent / f"perceive-clips-{len(presets)}x{per_fabric}"  # --quick's apart
+    folder = Path(clips) if clips else make_bench_clips(made_here, presets, per_fabric)
     manifest = Manifest.read(folder)
     arrays = ShardStore(folder, manifest).load()
     rows = sample_rows(arrays)[:limit]

@@ -97,7 +97,8 @@ class ClipDatasetSpec:
             raise TryonError(f"shard size {self.shard_size} is outside 1-4096 samples")
         bad = [p for p in self.presets if p not in MEASURED_FABRICS]
         if bad:
-            raise TryonError(f"--presets {bad}: clips on measured fabrics take some of {', '.join(MEASURED_FABRICS)}")
+            raise TryonError(f"unknown measured fabric {', '.join(bad)}: clips on measured fabrics take some of "
+                             f"{', '.join(MEASURED_FABRICS)}")
 
     def manifest(self, software_version: str, classes: FabricClasses | None = None) -> Manifest:
         self.validate()

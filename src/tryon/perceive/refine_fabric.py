@@ -36,12 +36,14 @@ from tryon.perceive.fabric_classes import FabricClasses
 GRID_POINTS = 5      # simulations spread over the stretching range, its ends included
 GOLDEN_STEPS = 4     # simulations of the golden-section search inside the best grid point's neighbours
 INVERSE_PHI = (math.sqrt(5.0) - 1.0) / 2.0
+EDGE_MARGIN = 1e-3   # of the class's width: the searched range stays this far inside the class
 
 
 @dataclass
 class Refinement:
-    """The refined fabric: its log10 stiffness on the class axes, the log10 scales applied
-    to the base fabric, and how the search went (one row per simulation)."""
+    """The refined fabric: where it lies on the class axes (log10 stiffness, absolute, as
+    `FabricClasses.position` gives it), the measured fabric it was made from, and how the
+    search went (one row per simulation)."""
 
     stretch_log10: float        # log10 N/m at 16 % strain (the class axis)
     bend_log10: float           # log10 N m, the class's centre: a clip does not show it
@@ -59,16 +61,18 @@ class Refinement:
 def search_scale(misfit: Callable[[float], float], bounds: tuple[float, float], grid: int = GRID_POINTS,
                  golden: int = GOLDEN_STEPS) -> tuple[float, float, list[tuple[float, float]]]:
     """The x in `bounds` with the smallest misfit(x): `grid` points across the range, then
-    `golden` golden-section points inside the best one's neighbours. Returns the best x
-    seen, its misfit, and every (x, misfit) in the order tried. A misfit of inf (a failed
-    simulation) is never best; all failing is an error."""
+    `golden` golden-section points inside the best one's neighbours (one point looks
+    between the best and its left neighbour only; two or more narrow the bracket). Returns
+    the best x seen, its misfit, and every (x, misfit) in the order tried. A misfit of inf
+    (a failed simulation) or NaN is never best; all failing is an error."""
     lo, hi = float(bounds[0]), float(bounds[1])
     if not hi > lo or grid < 2:
         raise TryonError(f"the search needs a range that rises and at least 2 grid points, got {bounds}, {grid}")
     seen: list[tuple[float, float]] = []
 
     def at(x: float) -> float:
-        seen.append((x, float(misfit(x))))
+        error = float(misfit(x))
+        seen.append((x, error if error == error else math.inf))  # NaN counts as failed
         return seen[-1][1]
 
     xs = np.linspace(lo, hi, grid)
@@ -186,7 +190,10 @@ def refine_clip_fabric(clip: ClipToRefine, classes: FabricClasses, c: int, bases
     if not bases:
         raise TryonError("the refinement needs at least one measured fabric to start from")
     (s0, s1), (b0, b1) = classes.box(c)
-    bounds = bounds or (s0, s1)
+    inside = EDGE_MARGIN * (s1 - s0)  # float32 features: a fabric right on an edge may read as the neighbour's
+    bounds = bounds or (s0 + inside, s1 - inside)
+    if not bounds[1] > bounds[0] or grid < 2:
+        raise TryonError(f"the search needs a range that rises and at least 2 grid points, got {bounds}, {grid}")
     centre, bend = (s0 + s1) / 2, (b0 + b1) / 2
     t0 = time.perf_counter()
     history: list[dict] = []
@@ -208,8 +215,11 @@ def refine_clip_fabric(clip: ClipToRefine, classes: FabricClasses, c: int, bases
         base = min(at_centre, key=lambda b: (at_centre[b], b))
         if math.isinf(at_centre[base]):
             raise TryonError(f"every simulation at the centre of class {classes.name(c)} failed; nothing to refine")
-        s, error, _ = search_scale(lambda x: at_centre[base] if math.isclose(x, centre, abs_tol=1e-9)
-                                   else trial(base, x), bounds, grid, golden)
+        try:
+            s, error, _ = search_scale(lambda x: at_centre[base] if math.isclose(x, centre, abs_tol=1e-9)
+                                       else trial(base, x), bounds, grid, golden)
+        except TryonError:  # every point of an even grid failed: the centre (not on it) did not
+            s, error = centre, math.inf
     if at_centre[base] <= error:
         s, error = centre, at_centre[base]
     refined = fabric(base, s)
@@ -217,8 +227,9 @@ def refine_clip_fabric(clip: ClipToRefine, classes: FabricClasses, c: int, bases
                            f"fabric class {classes.name(c)}")
     notes = [f"bending kept at the centre of class {classes.name(c)} (10^{bend:.2f} N m): a clip's motion "
              "hardly shows it"]
-    if s in bounds:
-        notes.append(f"the best stretching lies at the end of the searched range (10^{s:.3f} N/m): the fabric may "
-                     "be of a neighbouring class")
+    half_step = (bounds[1] - bounds[0]) / (grid - 1) / 2
+    if min(s - bounds[0], bounds[1] - s) < half_step:
+        notes.append(f"the best stretching lies at the end of the searched range (10^{s:.3f} N/m): the fabric is "
+                     "likely of a neighbouring class")
     return Refinement(float(s), float(bend), refined, base, at_centre, at_centre[base], error, len(history),
                       time.perf_counter() - t0, history, notes)
