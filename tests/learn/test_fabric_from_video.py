@@ -42,6 +42,20 @@ def test_the_classifier_reads_frames_5_a_second_from_where_the_person_is_found(r
     assert len(clip_frames(gap, gap >= 0.0)) == 11  # 0.0, 0.2, ..., 2.0 s
 
 
+def test_the_camera_stands_where_the_motion_turned_to_rest_heading_puts_it():
+    from tryon.body.motion_data import BodyMotion
+    from tryon.learn.video_resimulation import camera_direction, camera_heading
+    from tryon.perceive.motion_from_video import facing_forward
+
+    for yaw in (-1.3, -0.4, 0.0, 0.7, 2.5):
+        rotations = np.zeros((2, 2, 3))
+        rotations[:, 0, 2] = yaw  # the root turned about the vertical, as read from a video
+        # a point toward the camera (at -y in the motion as read) carried by the root's travel
+        moved = BodyMotion(rotations, ["root", "spine"], 30.0, np.array([[0.0, -1.0, 0.0], [0.0, -1.0, 0.0]]), "m")
+        turned = facing_forward(moved)
+        assert camera_direction(camera_heading(moved)) == pytest.approx(turned.root_translation[0], abs=1e-6)
+
+
 def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp_path, capsys):
     args = ["perceive", str(arm_raise_frames), "--height-cm", "170", "--gender", "female", "--garment", "tshirt",
             "--frames-fps", "5"]
@@ -52,6 +66,30 @@ def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp
     assert report["classifier_frames"] == 8 and report["motion"]["followed_frames"] == 8
     assert report["garment_found_frames"] >= 6
     assert (tmp_path / "plain" / "motion.npz").exists() and (tmp_path / "plain" / "frames.png").exists()
+    # re-simulated in a fabric asked: the garment draped on the body and moved through the
+    # motion read, beside the frames; what --resimulate needs is asked before any work
+    for extra, why in ((["--fabric", "gray-interlock"], "add --resimulate"),
+                       (["--resimulate"], "needs a fabric"),
+                       (["--resimulate", "--fabric", "gray-interlock", "--size", "Q"], "--size Q"),
+                       (["--resimulate", "--fabric", "no-such-cloth"], "unknown fabric")):
+        capsys.readouterr()
+        assert main(args + extra + ["--out", str(tmp_path / "bad")]) != 0
+        assert why in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    assert main(args + ["--resimulate", "--fabric", "gray-interlock", "--size", "M", "--edge-length", "0.04",
+                        "--out", str(tmp_path / "resim")]) == 0
+    resim = json.loads((tmp_path / "resim" / "report.json").read_text())["resimulation"]
+    assert resim["size"] == "M" and resim["fabric"] == "gray-interlock" and resim["frames"] >= 40
+    assert 0 < resim["max_strain"] < 2.0 and resim["summary"]["drape"]["penetration_pct"] < 5
+    from tryon.io.frames import load_frames_npz
+
+    frames = load_frames_npz(tmp_path / "resim" / "resimulated.npz")
+    assert frames["times"][0] >= 0 and frames["times"][-1] == pytest.approx(1.4, abs=0.05)
+    # the sleeves follow the arms as they rise
+    assert np.linalg.norm(frames["positions"][-1] - frames["positions"][0], axis=1).max() > 0.05
+    from PIL import Image
+
+    picture = np.asarray(Image.open(tmp_path / "resim" / "resimulated.png"))
+    assert picture.shape[0] == 2 * 280 and picture.shape[1] % 200 == 0
     # with an image-only classifier: a class, its probabilities, a fabric of that class
     model = _tiny_classifier(tmp_path / "image", "image-only-temporal")
     capsys.readouterr()

@@ -97,19 +97,41 @@ def _cmd_motion_from_video(args: argparse.Namespace) -> int:
 
 def _cmd_perceive(args: argparse.Namespace) -> int:
     from tryon.body.fit import Measurements, fit_body
+    from tryon.fabric.presets import load_fabric
     from tryon.garment.drafts import GARMENTS
     from tryon.io.atomic import atomic_output_dir, check_output_dir
     from tryon.learn.fabric_from_video import perceive_video, write_perceived
 
     if args.garment not in GARMENTS:
         raise TryonError(f"unknown garment {args.garment!r}; use one of {', '.join(GARMENTS)}")
+    if (args.fabric or args.size) and not args.resimulate:
+        raise TryonError("--fabric and --size choose what --resimulate simulates; add --resimulate")
+    if args.resimulate and not (args.fabric or args.classifier):
+        raise TryonError("--resimulate needs a fabric: a --classifier to find it, or --fabric PRESET_OR_JSON")
+    fabric = load_fabric(args.fabric) if args.fabric else None  # a bad fabric fails before the work
+    if args.resimulate:
+        from tryon.garment.sizes import SIZES
+
+        if not 0.004 <= args.edge_length <= 0.05:
+            raise TryonError(f"--edge-length {args.edge_length} m is outside 0.004-0.05 m")
+        if args.size:
+            args.size = "MTM" if args.size.lower() in ("mtm", "made-to-measure") else args.size.upper()
+            if args.size not in (*SIZES, "MTM"):
+                raise TryonError(f"--size {args.size}: give one of {', '.join(SIZES)} or made-to-measure")
     check_output_dir(args.out, force=args.force)
     size = {"weight_kg": args.weight_kg} if args.weight_kg is not None else {"bmi": 22.0}
-    body = fit_body(Measurements(height_cm=args.height_cm, gender=args.gender, **size))
+    asked = Measurements(height_cm=args.height_cm, gender=args.gender, **size)
+    body = fit_body(asked)
     seen = perceive_video(args.source, body.shape, args.garment, start_s=args.start_s, classifier=args.classifier,
                           folder_fps=args.frames_fps)
+    sim = None
+    if args.resimulate:
+        from tryon.learn.video_resimulation import resimulate
+
+        sim = resimulate(seen.video, body, asked, args.garment, fabric or seen.fabric, size=args.size,
+                         edge_length=args.edge_length)
     with atomic_output_dir(args.out, force=args.force) as tmp:
-        report = write_perceived(seen, tmp)
+        report = write_perceived(seen, tmp, sim)
     for note in report["notes"]:
         print(f"note: {note}")
     m = report["motion"]
@@ -120,6 +142,10 @@ def _cmd_perceive(args: argparse.Namespace) -> int:
         f = report["fabric"]
         print(f"fabric class {f['class']} ({100 * f['probability']:.0f} %; nearest measured fabrics: "
               f"{', '.join(f['nearest_presets'])}) -> {args.out}/fabric.json (tryon drape --fabric)")
+    if sim is not None:
+        r = report["resimulation"]
+        print(f"re-simulated: {args.garment} {r['size']} in {r['fabric']}, {r['frames']} frames, max strain "
+              f"{100 * r['max_strain']:.0f} %, {r['seconds']:.0f} s -> {args.out}/resimulated.png")
     return 0
 
 
@@ -172,6 +198,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--start-s", type=float, default=0.0, help="start this many seconds into the video")
     c.add_argument("--frames-fps", type=float, default=15.0, help="a folder of frames: the rate they were taken at")
     c.add_argument("--classifier", help="a fabric classifier from tryon train fabric-video (image-only methods)")
+    c.add_argument("--resimulate", action="store_true",
+                   help="drape the garment on the body and move it through the video's motion in the fabric found "
+                        "(or --fabric): resimulated.npz and resimulated.png, the video above the simulation")
+    c.add_argument("--fabric", help="--resimulate: the fabric to simulate (preset or .json; default: the class's)")
+    c.add_argument("--size", help="--resimulate: the garment's size (default: the body's size by the chart)")
+    c.add_argument("--edge-length", type=float, default=0.03,
+                   help="--resimulate: the garment's triangle edge length in metres (default 0.03, as the clips)")
     c.add_argument("--out", required=True, help="folder for motion.npz, body.obj, frames.png, report.json, fabric.json")
     c.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")
     c.set_defaults(func=_cmd_perceive)

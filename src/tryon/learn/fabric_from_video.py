@@ -154,8 +154,9 @@ def frames_picture(p: Perceived, count: int = 6) -> np.ndarray:
     return np.hstack(tiles)
 
 
-def write_perceived(p: Perceived, out: Path) -> dict:
-    """motion.npz, body.obj, frames.png, report.json and (with a class) fabric.json in `out`."""
+def write_perceived(p: Perceived, out: Path, sim=None) -> dict:
+    """motion.npz, body.obj, frames.png, report.json, (with a class) fabric.json and (with
+    `sim`, a `video_resimulation.Resimulation`) resimulated.npz and resimulated.png in `out`."""
     from tryon.io.json_safe import dumps_json
     from tryon.io.mesh_io import write_obj
     from tryon.perceive.motion_from_video import facing_forward
@@ -176,6 +177,18 @@ def write_perceived(p: Perceived, out: Path) -> dict:
                             "nearest_presets": p.classes.nearest_measured(c, 3), "file": "fabric.json"}
         with (out / "fabric.json").open("w") as fh:
             fh.write(json.dumps(p.fabric.to_arcsim_dict(), indent=1))
+    if sim is not None:
+        from tryon.io.frames import save_frames_npz
+        from tryon.learn.video_resimulation import camera_heading, side_by_side
+
+        save_frames_npz(out / "resimulated.npz", sim.garment, sim.faces, uv=sim.uv, times=sim.times,
+                        body_vertices=sim.body.astype(np.float32), body_faces=sim.body_faces)
+        save_png(out / "resimulated.png", side_by_side(p.video, p.frames[::max(1, len(p.frames) // 6)][:6], sim,
+                                                       camera_heading(p.video.motion)))
+        report["resimulation"] = {"size": sim.size, "fabric": sim.fabric, "frames": int(len(sim.times)),
+                                  "max_strain": float(sim.summary.get("max_strain", float("nan"))),
+                                  "seconds": sim.seconds, "summary": sim.summary, "files": ["resimulated.npz",
+                                                                                           "resimulated.png"]}
     with (out / "report.json").open("w") as fh:
         fh.write(dumps_json(report, indent=2))
     return report

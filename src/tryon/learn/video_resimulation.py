@@ -1,0 +1,121 @@
+"""The garment re-simulated on the motion read from a video (`tryon perceive --resimulate`):
+what the estimated fabric does on this person doing what they did, beside the video.
+
+The garment (its chart size for the body, or the size asked) is draped on the body the
+motion was fitted on, as `tryon drape` does, in the estimated fabric (the class's when a
+classifier named one, else the fabric asked); then the body blends from the drape's pose
+into the motion read from the video (turned to the rest heading, as motion.npz holds it)
+and the garment follows (`tryon.drape.animate.garment_motion_scene`). The picture puts
+the video's frames above the re-simulated body and garment at the same moments, seen from
+where the camera saw the person (the heading `facing_forward` took out, put back).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from tryon.body.motion import BLEND_TIME
+from tryon.errors import TryonError
+
+EDGE_LENGTH = 0.03   # m: the clips' edges (every T-shirt size dresses; about a minute for 5 s of motion)
+DT = 0.01
+TILE_WH = (200, 280)
+
+
+@dataclass
+class Resimulation:
+    times: np.ndarray        # [T] s of the video clip (0 = its first frame)
+    garment: np.ndarray      # [T,N,3] garment vertices
+    faces: np.ndarray
+    uv: np.ndarray           # [N,2] the garment's material coordinates (m)
+    body: np.ndarray         # [T,M,3] body vertices
+    body_faces: np.ndarray
+    size: str
+    fabric: str
+    summary: dict
+    seconds: float
+
+
+def camera_heading(motion) -> float:
+    """The heading (rad, about the vertical) `facing_forward` takes out of `motion`."""
+    from tryon.body.pose import axis_angle
+
+    R = axis_angle(motion.rotations[:1, motion.bone_labels.index("root")])
+    return float(np.arctan2(R[0, 1, 0], R[0, 0, 0]))
+
+
+def camera_direction(heading: float) -> np.ndarray:
+    """The unit vector from the body toward the camera in the motion turned to the rest
+    heading: the camera looks along +y in the motion as read (`motion_from_video`), so it
+    stands at -y, turned with the motion by -heading."""
+    return np.array([-np.sin(heading), -np.cos(heading), 0.0])
+
+
+def resimulate(video, person, asked, garment: str, fabric, size: str | None = None, edge_length: float = EDGE_LENGTH,
+               progress: bool = True) -> Resimulation:
+    """`garment` draped on `person` (the `BodyFit` the video's motion was fitted on, from
+    the `Measurements` `asked`) in `fabric` and moved through the video's motion (`video`:
+    a `VideoMotion`)."""
+    from tryon.drape import DrapeRequest, drape
+    from tryon.drape.animate import GarmentAtRest, garment_motion_scene
+    from tryon.drape.pipeline import drape_pose
+    from tryon.perceive.motion_from_video import facing_forward
+    from tryon.sizing.chart import MADE_TO_MEASURE, chart_size, fitted_girths
+    from tryon.sim.runner import simulate
+
+    t0 = time.perf_counter()
+    size = size or chart_size(garment, fitted_girths(person), asked.gender)[0]
+    request = DrapeRequest(asked, garment=garment, size=None if size == MADE_TO_MEASURE else size,
+                           fabric=fabric, edge_length=edge_length)  # a Fabric as is
+    draped = drape(request, progress=progress, person=person)
+    g = draped.garment
+    motion = facing_forward(video.motion)
+    duration = BLEND_TIME + float(video.frames.times[-1])
+    shape = person.shape
+    scene = garment_motion_scene(shape, drape_pose(shape, garment), GarmentAtRest(draped.x, g.uv, g.faces, g.corner_uv,
+                                                                                  garment),
+                                 fabric, motion, request.thickness, request.friction, DT, duration)
+    result = simulate(scene, progress=progress)
+    times = np.asarray(result.times) - BLEND_TIME
+    keep = times >= -1e-9
+    bodies = np.stack([scene.model.obstacles.vertices_at(float(t)) for t in np.asarray(result.times)[keep]])
+    return Resimulation(times[keep], np.asarray(result.positions)[keep], np.asarray(g.faces), np.asarray(g.uv), bodies,
+                        np.asarray(shape.faces), size, getattr(fabric, "name", "fabric"),
+                        {"drape": {k: draped.metrics.get(k) for k in ("settled", "max_strain", "penetration_pct")},
+                         **dict(result.summary)}, time.perf_counter() - t0)
+
+
+def side_by_side(video, frames: list[int], sim: Resimulation, heading: float) -> np.ndarray:
+    """The video's `frames` (indices into `video.frames`) cropped around the person, above
+    the re-simulation at the same times seen from the camera's side (RGB uint8)."""
+    from PIL import Image
+
+    from tryon.render.offscreen import Camera, RenderMesh, render_meshes
+
+    w, h = TILE_WH
+    toward_camera = camera_direction(heading)
+    tops, bottoms = [], []
+    for k in frames:
+        person = video.people[k]
+        if person is None:
+            continue
+        x0, y0, x1, y1 = (int(v / person.scale) for v in person.box)
+        pad = (y1 - y0) // 10
+        side = (y1 - y0) + 2 * pad
+        cx = (x0 + x1) // 2
+        wide = int(side * w / h)
+        crop = Image.fromarray(video.frames.images[k]).crop((cx - wide // 2, y0 - pad, cx + wide // 2, y1 + pad))
+        tops.append(np.asarray(crop.resize((w, h))))
+        j = int(np.abs(sim.times - video.frames.times[k]).argmin())
+        body = sim.body[j]
+        centre = (body.min(0) + body.max(0)) / 2
+        cam = Camera(eye=centre + 5.0 * toward_camera, target=centre, fov_deg=22)
+        bottoms.append(render_meshes([RenderMesh(body, sim.body_faces, color=(0.8, 0.75, 0.7)),
+                                      RenderMesh(sim.garment[j], sim.faces, color=(0.75, 0.3, 0.25), two_sided=True)],
+                                     w, h, cam))
+    if not tops:
+        raise TryonError("the person is not found in any frame the picture would show")
+    return np.vstack([np.hstack(tops), np.hstack(bottoms)])
