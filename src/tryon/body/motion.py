@@ -83,6 +83,13 @@ def smoothstep(s: np.ndarray | float) -> np.ndarray | float:
     return s * s * (3 - 2 * s)
 
 
+def motion_start(motion: BodyMotion, blend_time: float = BLEND_TIME, fps: float | None = None) -> float:
+    """When the motion's first frame is reached after the blend (s): the blend lasts a whole
+    number of frames at `fps` (the motion's own by default), so not always `blend_time`."""
+    fps = fps or motion.fps
+    return max(1, int(round(blend_time * fps))) / fps
+
+
 def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, blend_time: float = BLEND_TIME,
                  fps: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poses [K,J,3,3], root translations [K,3] and times [K]: `blend_time` seconds from
@@ -91,7 +98,7 @@ def motion_poses(shape: BodyShape, motion: BodyMotion, start_pose: np.ndarray, b
     if not (MIN_FPS <= fps <= MAX_FPS and 0 <= blend_time <= MAX_BLEND_TIME):
         raise TryonError(f"motion {motion.name}: need {MIN_FPS:g} <= fps <= {MAX_FPS:g} and 0 <= blend_time <= "
                          f"{MAX_BLEND_TIME:g} s, got fps {fps} and blend_time {blend_time}")
-    n_blend = max(1, int(round(blend_time * fps)))
+    n_blend = int(round(motion_start(motion, blend_time, fps) * fps))
     count = n_blend + int(motion.duration * fps + 1e-9) + 1
     check_limit(f"motion {motion.name} at {fps:g} fps: frames", count, LIMITS.max_frames, "max_frames")
     poses = motion.pose_matrices(shape)

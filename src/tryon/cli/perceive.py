@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from tryon.errors import TryonError
+from tryon.sizing.chart import MADE_TO_MEASURE
 
 
 def _cmd_person(args: argparse.Namespace) -> int:
@@ -95,6 +96,21 @@ def _cmd_motion_from_video(args: argparse.Namespace) -> int:
     return 0
 
 
+def _resimulation_size_and_edge(args: argparse.Namespace) -> tuple[str | None, float]:
+    """--size (a standard size, MADE_TO_MEASURE, or None: the chart's) and --edge-length of --resimulate, checked."""
+    from tryon.garment.sizes import SIZES
+
+    edge = 0.03 if args.edge_length is None else args.edge_length
+    if not 0.004 <= edge <= 0.05:
+        raise TryonError(f"--edge-length {edge} m is outside 0.004-0.05 m")
+    size = args.size.upper() if args.size else None
+    if size in ("MTM", "MADE-TO-MEASURE"):
+        size = MADE_TO_MEASURE
+    if size is not None and size not in (*SIZES, MADE_TO_MEASURE):
+        raise TryonError(f"--size {args.size}: give one of {', '.join(SIZES)} or made-to-measure")
+    return size, edge
+
+
 def _cmd_perceive(args: argparse.Namespace) -> int:
     from tryon.body.fit import Measurements, fit_body
     from tryon.fabric.presets import load_fabric
@@ -104,32 +120,28 @@ def _cmd_perceive(args: argparse.Namespace) -> int:
 
     if args.garment not in GARMENTS:
         raise TryonError(f"unknown garment {args.garment!r}; use one of {', '.join(GARMENTS)}")
-    if (args.fabric or args.size) and not args.resimulate:
-        raise TryonError("--fabric and --size choose what --resimulate simulates; add --resimulate")
+    if (args.fabric or args.size or args.edge_length is not None) and not args.resimulate:
+        raise TryonError("--fabric, --size and --edge-length choose what --resimulate simulates; add --resimulate")
     if args.resimulate and not (args.fabric or args.classifier):
         raise TryonError("--resimulate needs a fabric: a --classifier to find it, or --fabric PRESET_OR_JSON")
     fabric = load_fabric(args.fabric) if args.fabric else None  # a bad fabric fails before the work
-    if args.resimulate:
-        from tryon.garment.sizes import SIZES
-
-        if not 0.004 <= args.edge_length <= 0.05:
-            raise TryonError(f"--edge-length {args.edge_length} m is outside 0.004-0.05 m")
-        if args.size:
-            args.size = "MTM" if args.size.lower() in ("mtm", "made-to-measure") else args.size.upper()
-            if args.size not in (*SIZES, "MTM"):
-                raise TryonError(f"--size {args.size}: give one of {', '.join(SIZES)} or made-to-measure")
+    size, edge = _resimulation_size_and_edge(args)
     check_output_dir(args.out, force=args.force)
-    size = {"weight_kg": args.weight_kg} if args.weight_kg is not None else {"bmi": 22.0}
-    asked = Measurements(height_cm=args.height_cm, gender=args.gender, **size)
+    heft = {"weight_kg": args.weight_kg} if args.weight_kg is not None else {"bmi": 22.0}
+    asked = Measurements(height_cm=args.height_cm, gender=args.gender, **heft)
     body = fit_body(asked)
+    if size is not None and size != MADE_TO_MEASURE:  # a size too small is refused before the video's work
+        from tryon.drape import DrapeRequest
+        from tryon.drape.pipeline import check_size_fits
+
+        check_size_fits(DrapeRequest(asked, garment=args.garment, size=size), body)
     seen = perceive_video(args.source, body.shape, args.garment, start_s=args.start_s, classifier=args.classifier,
                           folder_fps=args.frames_fps)
     sim = None
     if args.resimulate:
         from tryon.learn.video_resimulation import resimulate
 
-        sim = resimulate(seen.video, body, asked, args.garment, fabric or seen.fabric, size=args.size,
-                         edge_length=args.edge_length)
+        sim = resimulate(seen.video, body, asked, args.garment, fabric or seen.fabric, size=size, edge_length=edge)
     with atomic_output_dir(args.out, force=args.force) as tmp:
         report = write_perceived(seen, tmp, sim)
     for note in report["notes"]:
@@ -144,8 +156,9 @@ def _cmd_perceive(args: argparse.Namespace) -> int:
               f"{', '.join(f['nearest_presets'])}) -> {args.out}/fabric.json (tryon drape --fabric)")
     if sim is not None:
         r = report["resimulation"]
-        print(f"re-simulated: {args.garment} {r['size']} in {r['fabric']}, {r['frames']} frames, max strain "
-              f"{100 * r['max_strain']:.0f} %, {r['seconds']:.0f} s -> {args.out}/resimulated.png")
+        print(f"re-simulated: {args.garment} {r['size']} in {r['fabric']}, {r['frames']} frames, peak strain "
+              f"{100 * r['max_strain']:.0f} % (at the end {100 * r['final_max_strain']:.0f} %), {r['seconds']:.0f} s "
+              f"-> {args.out}/resimulated.png")
     return 0
 
 
@@ -203,7 +216,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "(or --fabric): resimulated.npz and resimulated.png, the video above the simulation")
     c.add_argument("--fabric", help="--resimulate: the fabric to simulate (preset or .json; default: the class's)")
     c.add_argument("--size", help="--resimulate: the garment's size (default: the body's size by the chart)")
-    c.add_argument("--edge-length", type=float, default=0.03,
+    c.add_argument("--edge-length", type=float, default=None,
                    help="--resimulate: the garment's triangle edge length in metres (default 0.03, as the clips)")
     c.add_argument("--out", required=True, help="folder for motion.npz, body.obj, frames.png, report.json, fabric.json")
     c.add_argument("--force", action="store_true", help="replace an --out folder tryon did not write")

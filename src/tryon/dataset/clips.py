@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tryon.body.motion import BLEND_TIME, BUILTIN_MOTIONS, load_motion
+from tryon.body.motion import BLEND_TIME, BUILTIN_MOTIONS, load_motion, motion_start
 from tryon.body.motion_data import BodyMotion
 from tryon.body.measure import drafting_measurements
 from tryon.body.pose import BodyPose, posed_body
@@ -323,7 +323,7 @@ def clip_for_refinement(manifest: Manifest, folder, sample: dict, frames: int | 
     shape = body.shape()
     motion, _ = clip_motion(manifest, unit)
     # the motion's own clock at the clip's first frame (the blend lasts whole motion frames)
-    t0 = BLEND_TIME - max(1, int(round(BLEND_TIME * motion.fps))) / motion.fps
+    t0 = BLEND_TIME - motion_start(motion)
     frames = frames or len(sample["x"])
     moved, start, offset = motion_after(motion, shape, t0, (frames - 1) / spec["fps"])
     gender = next(g for g, code in GENDER_CODE.items() if code == int(sample["gender"]))

@@ -186,7 +186,8 @@ def write_perceived(p: Perceived, out: Path, sim=None) -> dict:
         save_png(out / "resimulated.png", side_by_side(p.video, p.frames[::max(1, len(p.frames) // 6)][:6], sim,
                                                        camera_heading(p.video.motion)))
         report["resimulation"] = {"size": sim.size, "fabric": sim.fabric, "frames": int(len(sim.times)),
-                                  "max_strain": float(sim.summary.get("max_strain", float("nan"))),
+                                  "max_strain": float(sim.summary.get("clip_max_strain") or float("nan")),
+                                  "final_max_strain": float(sim.summary.get("final_max_strain", float("nan"))),
                                   "seconds": sim.seconds, "summary": sim.summary, "files": ["resimulated.npz",
                                                                                            "resimulated.png"]}
     with (out / "report.json").open("w") as fh:

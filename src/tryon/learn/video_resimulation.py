@@ -2,10 +2,11 @@
 what the estimated fabric does on this person doing what they did, beside the video.
 
 The garment (its chart size for the body, or the size asked) is draped on the body the
-motion was fitted on, as `tryon drape` does, in the estimated fabric (the class's when a
-classifier named one, else the fabric asked); then the body blends from the drape's pose
+motion was fitted on, as `tryon drape` does, in the fabric asked or else the estimated one
+(the class's, when a classifier named one); then the body blends from the drape's pose
 into the motion read from the video (turned to the rest heading, as motion.npz holds it)
-and the garment follows (`tryon.drape.animate.garment_motion_scene`). The picture puts
+and the garment follows (`tryon.drape.animate.garment_motion_scene`), recorded 30 times a
+second from the video's first frame on. The picture puts
 the video's frames above the re-simulated body and garment at the same moments, seen from
 where the camera saw the person (the heading `facing_forward` took out, put back).
 """
@@ -17,12 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tryon.body.motion import BLEND_TIME
+from tryon.body.motion import motion_start
 from tryon.errors import TryonError
 
 EDGE_LENGTH = 0.03   # m: the clips' edges (every T-shirt size dresses; about a minute for 5 s of motion)
 DT = 0.01
 TILE_WH = (200, 280)
+FOV_DEG = 22.0
 
 
 @dataclass
@@ -73,19 +75,22 @@ def resimulate(video, person, asked, garment: str, fabric, size: str | None = No
     draped = drape(request, progress=progress, person=person)
     g = draped.garment
     motion = facing_forward(video.motion)
-    duration = BLEND_TIME + float(video.frames.times[-1])
+    start = motion_start(motion)  # the scene time of the video's first frame
+    duration = start + float(video.frames.times[-1])
     shape = person.shape
     scene = garment_motion_scene(shape, drape_pose(shape, garment), GarmentAtRest(draped.x, g.uv, g.faces, g.corner_uv,
                                                                                   garment),
                                  fabric, motion, request.thickness, request.friction, DT, duration)
     result = simulate(scene, progress=progress)
-    times = np.asarray(result.times) - BLEND_TIME
-    keep = times >= -1e-9
+    times = np.asarray(result.times) - start
+    keep = times >= -1e-6
     bodies = np.stack([scene.model.obstacles.vertices_at(float(t)) for t in np.asarray(result.times)[keep]])
+    strains = [m["max_strain"] for m, k in zip(result.frame_metrics, keep) if k and "max_strain" in m]
     return Resimulation(times[keep], np.asarray(result.positions)[keep], np.asarray(g.faces), np.asarray(g.uv), bodies,
                         np.asarray(shape.faces), size, getattr(fabric, "name", "fabric"),
                         {"drape": {k: draped.metrics.get(k) for k in ("settled", "max_strain", "penetration_pct")},
-                         **dict(result.summary)}, time.perf_counter() - t0)
+                         "clip_max_strain": max(strains) if strains else None, **dict(result.summary)},
+                        time.perf_counter() - t0)
 
 
 def side_by_side(video, frames: list[int], sim: Resimulation, heading: float) -> np.ndarray:
@@ -104,15 +109,17 @@ def side_by_side(video, frames: list[int], sim: Resimulation, heading: float) ->
             continue
         x0, y0, x1, y1 = (int(v / person.scale) for v in person.box)
         pad = (y1 - y0) // 10
-        side = (y1 - y0) + 2 * pad
+        side = max(8, (y1 - y0) + 2 * pad)
         cx = (x0 + x1) // 2
-        wide = int(side * w / h)
+        wide = max(8, int(side * w / h))
         crop = Image.fromarray(video.frames.images[k]).crop((cx - wide // 2, y0 - pad, cx + wide // 2, y1 + pad))
         tops.append(np.asarray(crop.resize((w, h))))
         j = int(np.abs(sim.times - video.frames.times[k]).argmin())
         body = sim.body[j]
         centre = (body.min(0) + body.max(0)) / 2
-        cam = Camera(eye=centre + 5.0 * toward_camera, target=centre, fov_deg=22)
+        extent = float((body.max(0) - body.min(0)).max())
+        distance = 1.2 * extent / (2 * np.tan(np.radians(FOV_DEG / 2)))  # the whole body, outstretched arms too
+        cam = Camera(eye=centre + distance * toward_camera, target=centre, fov_deg=FOV_DEG)
         bottoms.append(render_meshes([RenderMesh(body, sim.body_faces, color=(0.8, 0.75, 0.7)),
                                       RenderMesh(sim.garment[j], sim.faces, color=(0.75, 0.3, 0.25), two_sided=True)],
                                      w, h, cam))
