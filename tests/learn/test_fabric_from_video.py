@@ -74,6 +74,8 @@ def test_a_clip_is_perceived_with_and_without_a_classifier(arm_raise_frames, tmp
 
     frames = load_frames_npz(tmp_path / "resim" / "resimulated.npz")
     assert frames["times"][0] >= 0 and frames["times"][-1] == pytest.approx(1.4, abs=0.05)
+    assert frames["max_strain"].shape == frames["times"].shape
+    assert frames["max_strain"].max() == pytest.approx(resim["max_strain"], rel=1e-5)
     # the sleeves follow the arms as they rise
     assert np.linalg.norm(frames["positions"][-1] - frames["positions"][0], axis=1).max() > 0.05
     from PIL import Image

@@ -182,7 +182,8 @@ def write_perceived(p: Perceived, out: Path, sim=None) -> dict:
         from tryon.learn.video_resimulation import camera_heading, side_by_side
 
         save_frames_npz(out / "resimulated.npz", sim.garment, sim.faces, uv=sim.uv, times=sim.times,
-                        body_vertices=sim.body.astype(np.float32), body_faces=sim.body_faces)
+                        body_vertices=sim.body.astype(np.float32), body_faces=sim.body_faces,
+                        max_strain=np.asarray(sim.summary["frame_max_strain"], np.float32))
         save_png(out / "resimulated.png", side_by_side(p.video, p.frames[::max(1, len(p.frames) // 6)][:6], sim,
                                                        camera_heading(p.video.motion)))
         report["resimulation"] = {"size": sim.size, "fabric": sim.fabric, "frames": int(len(sim.times)),

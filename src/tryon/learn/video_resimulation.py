@@ -85,11 +85,12 @@ def resimulate(video, person, asked, garment: str, fabric, size: str | None = No
     times = np.asarray(result.times) - start
     keep = times >= -1e-6
     bodies = np.stack([scene.model.obstacles.vertices_at(float(t)) for t in np.asarray(result.times)[keep]])
-    strains = [m["max_strain"] for m, k in zip(result.frame_metrics, keep) if k and "max_strain" in m]
+    strains = [float(m.get("max_strain", np.nan)) for m, k in zip(result.frame_metrics, keep) if k]
     return Resimulation(times[keep], np.asarray(result.positions)[keep], np.asarray(g.faces), np.asarray(g.uv), bodies,
                         np.asarray(shape.faces), size, getattr(fabric, "name", "fabric"),
                         {"drape": {k: draped.metrics.get(k) for k in ("settled", "max_strain", "penetration_pct")},
-                         "clip_max_strain": max(strains) if strains else None, **dict(result.summary)},
+                         "clip_max_strain": float(np.nanmax(strains)) if strains else None,
+                         "frame_max_strain": strains, **dict(result.summary)},
                         time.perf_counter() - t0)
 
 
