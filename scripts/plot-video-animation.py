@@ -14,7 +14,7 @@ import numpy as np
 from PIL import Image
 
 from tryon.body.motion import BLEND_TIME
-from tryon.perceive.person import detect_person
+from tryon.perceive.person import detect_person, person_tile
 from tryon.perceive.video import read_frames
 from tryon.render.offscreen import Camera, RenderMesh, render_meshes
 
@@ -26,12 +26,7 @@ def video_tile(image: np.ndarray) -> np.ndarray:
     p = detect_person(image, "frame")
     if p is None:
         raise SystemExit("no person found in a frame the picture needs; choose other --start-s or TIMES")
-    x0, y0, x1, y1 = (int(v / p.scale) for v in p.box)
-    pad = (y1 - y0) // 10
-    h = (y1 - y0) + 2 * pad
-    w = int(h * W / H)
-    cx = (x0 + x1) // 2
-    return np.asarray(Image.fromarray(image).crop((cx - w // 2, y0 - pad, cx + w // 2, y1 + pad)).resize((W, H)))
+    return person_tile(image, [v / p.scale for v in p.box], H, aspect=W / H)
 
 
 def sim_tile(body: np.ndarray, body_faces: np.ndarray, cloth: np.ndarray, faces: np.ndarray) -> np.ndarray:

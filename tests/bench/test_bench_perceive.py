@@ -61,3 +61,24 @@ def test_the_bench_judges_the_class_and_the_refinement_on_each_clip(tmp_path):
     assert mean["refined_better"] == better and mean_record("m", clips[:1])["clips"] == 1
     with pytest.raises(TryonError, match="no finished clips"):
         run_perceive_bench(str(out), clips=str(tmp_path / "clips"), limit=0)
+    # with an image-only classifier the class is its top guess, judged against the truth
+    model = _tiny_classifier(tmp_path / "classifier")
+    [guessed, _] = run_perceive_bench(str(out), clips=str(tmp_path / "clips"), model_path=str(model), frames=3,
+                                      bases=PRESETS[:1], grid=2, golden=1, limit=1)
+    assert guessed["method"] == "image-only-temporal" and guessed["top1"] in (0.0, 1.0)
+    assert guessed["top3"] >= guessed["top1"] and guessed["true_class"] == clips[0]["true_class"]
+    assert (guessed["class"] == guessed["true_class"]) == (guessed["top1"] == 1.0)
+
+
+def _tiny_classifier(folder):
+    from tryon.learn.fabric_video import ClipTensors
+    from tryon.learn.train_fabric_video import ClassifierTrainConfig, train_classifier
+
+    rng = np.random.default_rng(0)
+    n, T = 6, 4
+    clips = ClipTensors((rng.random((n, T, 2, 64, 64)) > 0.5).astype(np.uint8), rng.random((n, T, 99)).astype(np.float32),
+                        rng.normal(size=(n, T, 16)).astype(np.float32), np.arange(n) * 9, np.array(["train"] * n),
+                        np.array(["tshirt"] * n))
+    train_classifier(clips, folder, "image-only-temporal", ClassifierTrainConfig(epochs=1, batch=3), classes=54,
+                     progress=False)
+    return folder / "fabric-video.npz"

@@ -6,8 +6,8 @@ import pytest
 
 from tryon.body.motion import BLEND_TIME, motion_start
 from tryon.body.motion_data import BodyMotion
-from tryon.learn.video_resimulation import camera_direction, camera_heading
-from tryon.perceive.motion_from_video import facing_forward
+from tryon.learn.video_resimulation import camera_direction
+from tryon.perceive.motion_from_video import camera_heading, facing_forward
 
 
 @pytest.mark.parametrize("yaw", [-1.3, -0.4, 0.0, 0.7, 2.5])

@@ -137,3 +137,18 @@ def test_person_command_writes_overlays_and_names_the_refused(standing_render, t
     assert (tmp_path / "out" / people["people"][0]["picture"]).is_file()
     assert set(people["people"][0]["keypoints_px"]) >= {"nose", "left_heel", "right_foot_index"}
     assert main(["person", str(tmp_path / "wall.png"), "--out", str(tmp_path / "out2")]) == 2  # nothing usable
+
+
+def test_a_person_tile_is_centred_on_the_box_with_its_pad():
+    from tryon.perceive.person import person_tile
+
+    image = np.zeros((400, 300, 3), np.uint8)
+    image[100:300, 120:180] = 255  # the person: 200 px high, 60 wide
+    tile = person_tile(image, (120, 100, 180, 300), 120, aspect=0.5)
+    assert tile.shape == (120, 60, 3)
+    bright = np.argwhere(tile[..., 0] > 127)
+    # 10 % of the height padded above and below: the person spans rows 10-110 of 120
+    assert bright[:, 0].min() == pytest.approx(10, abs=1) and bright[:, 0].max() == pytest.approx(109, abs=1)
+    assert bright[:, 1].mean() == pytest.approx(29.5, abs=1)  # centred across
+    free = person_tile(image, (120, 100, 180, 300), 120)      # as wide as the padded box: 100 px of 240 high
+    assert free.shape == (120, 50, 3)

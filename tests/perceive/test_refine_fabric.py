@@ -12,7 +12,8 @@ from tryon.fabric.blend import fabric_features, scaled_stiffness
 from tryon.fabric.presets import mean_preset_fabric
 from tryon.fabric.wang2011 import MEASURED_FABRICS
 from tryon.perceive.fabric_classes import default_classes
-from tryon.perceive.refine_fabric import GOLDEN_STEPS, GRID_POINTS, misfit, refine_clip_fabric, search_scale
+from tryon.perceive.refine_fabric import (GOLDEN_STEPS, GRID_POINTS, INVERSE_PHI, RESOLUTION_LOG10, golden_steps, misfit,
+                                         refine_clip_fabric, search_scale)
 
 
 def scaled_fabric(base, s, b):
@@ -92,6 +93,25 @@ def test_the_refinement_picks_the_base_then_the_stretching_inside_the_class():
     r = refine_clip_fabric(FakeClip(s1 + 0.5, "gray-interlock"), classes, c, bases=("gray-interlock", "paper"))
     assert r.stretch_log10 == pytest.approx(s1, abs=0.01 * (s1 - s0)) and classes.class_of(r.fabric) == c
     assert "neighbouring class" in r.notes[-1]
+
+
+def test_wider_classes_get_more_golden_section_steps_until_the_bracket_is_narrow():
+    classes = default_classes()
+    for c in range(classes.count):
+        (s0, s1), _ = classes.box(c)
+        n = golden_steps(s1 - s0)
+        bracket = 2 * (s1 - s0) / (GRID_POINTS - 1)
+        assert n >= GOLDEN_STEPS and bracket * INVERSE_PHI ** (n - 1) <= max(RESOLUTION_LOG10, bracket * INVERSE_PHI ** 3)
+        if n > GOLDEN_STEPS:  # no more than needed
+            assert bracket * INVERSE_PHI ** (n - 2) > RESOLUTION_LOG10
+    # the widest bin (almost a decade) is searched to the resolution too
+    c = classes.index(5, 4)
+    (s0, s1), _ = classes.box(c)
+    target = s0 + 0.62 * (s1 - s0)
+    clip = FakeClip(target, "gray-interlock")
+    r = refine_clip_fabric(clip, classes, c, bases=("gray-interlock",))
+    assert golden_steps(s1 - s0) > GOLDEN_STEPS and r.simulations == GRID_POINTS + golden_steps(s1 - s0)
+    assert r.stretch_log10 == pytest.approx(target, abs=RESOLUTION_LOG10 / 2)
 
 
 def test_the_refinement_keeps_the_centre_when_the_rest_fails_and_names_what_it_cannot_do():

@@ -50,14 +50,8 @@ def make_bench_clips(folder: Path, presets: tuple[str, ...], per_fabric: int, ga
     return folder
 
 
-def stored_frames(sample: dict) -> list[dict]:
-    """A stored clip's frames as `tryon.perceive.frame_features` gives them (what the classifier reads)."""
-    keys = ("mask_bits", "found_garment_bits", "keypoints", "visibility")
-    return [{k: sample[f"frame_{k}"][t] for k in keys} for t in range(len(sample["frame_mask_bits"]))]
-
-
 def judge_clip(manifest, folder: Path, sample: dict, classes, model, frames: int, bases: tuple[str, ...],
-               grid: int, golden: int) -> dict:
+               grid: int, golden: int | None) -> dict:
     from tryon.dataset.clips import clip_for_refinement
     from tryon.perceive.refine_fabric import refine_clip_fabric
 
@@ -68,9 +62,9 @@ def judge_clip(manifest, folder: Path, sample: dict, classes, model, frames: int
            "top1": None, "top3": None, "chamfer_cm": None}
     c = true_c
     if model is not None:
-        from tryon.learn.fabric_from_video import classify
+        from tryon.learn.fabric_from_video import FRAME_KEYS, classify
 
-        p = classify(model, stored_frames(sample))
+        p = classify(model, {k: sample[f"frame_{k}"] for k in FRAME_KEYS})
         top = [int(k) for k in np.argsort(-p)[:3]]
         c = top[0]
         rec.update({"top1": float(c == true_c), "top3": float(true_c in top),
@@ -104,7 +98,7 @@ def run_perceive_bench(json_path: str, clips: str | None = None, model_path: str
                        limit: int | None = None) -> list[dict]:
     from tryon.dataset.store import Manifest, ShardStore, sample_rows
     from tryon.perceive.fabric_classes import default_classes
-    from tryon.perceive.refine_fabric import GOLDEN_STEPS, GRID_POINTS
+    from tryon.perceive.refine_fabric import GRID_POINTS
 
     model, method = None, "true-class"
     if model_path:
@@ -128,7 +122,7 @@ def run_perceive_bench(json_path: str, clips: str | None = None, model_path: str
         for i, r in enumerate(rows):
             sample = {k: v[r] for k, v in arrays.items()}
             rec = {"method": method, **judge_clip(manifest, folder, sample, classes, model, frames, bases,
-                                                  grid or GRID_POINTS, golden or GOLDEN_STEPS)}
+                                                  grid or GRID_POINTS, golden)}
             records.append(rec)
             progress_line("perceive", f"clip {i + 1}/{len(rows)} ({rec['fabric']}): stiffness error "
                           f"{rec['stiffness_error_pct']:.1f} % at the class's centre, "

@@ -46,12 +46,19 @@ class Perceived:
         return None if self.probabilities is None else int(self.probabilities.argmax())
 
 
-def classifier_inputs(features: list[dict]) -> tuple[torch.Tensor, torch.Tensor]:
+FRAME_KEYS = ("mask_bits", "found_garment_bits", "keypoints", "visibility")  # what the classifier reads per frame
+
+
+def stack_frames(features: list[dict]) -> dict[str, np.ndarray]:
+    """`frame_features` of a clip's frames stacked over the frames, as a stored clip holds them."""
+    return {k: np.stack([f[k] for f in features]) for k in FRAME_KEYS}
+
+
+def classifier_inputs(frames: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
     """Masks [1,T,2,64,64] and keypoints [1,T,99] as `tryon.learn.fabric_video` reads clips."""
     from tryon.learn.fabric_video import frame_inputs
 
-    masks, kp = frame_inputs(*(np.stack([f[k] for f in features])
-                               for k in ("mask_bits", "found_garment_bits", "keypoints", "visibility")))
+    masks, kp = frame_inputs(*(frames[k] for k in FRAME_KEYS))
     return torch.from_numpy(masks[None]), torch.from_numpy(kp[None])
 
 
@@ -65,11 +72,12 @@ def check_image_only(model, name: str) -> None:
                          "image-only-temporal)")
 
 
-def classify(model, features: list[dict]) -> np.ndarray:
-    """Class probabilities of an image-only classifier on the frames' features."""
+def classify(model, frames: dict[str, np.ndarray]) -> np.ndarray:
+    """Class probabilities of an image-only classifier on a clip's frames (`FRAME_KEYS`
+    stacked over the frames: `stack_frames`, or a stored clip's `frame_*` arrays)."""
     check_image_only(model, "the classifier")
-    masks, keypoints = classifier_inputs(features)
-    codes = torch.zeros(1, len(features), 1)  # unread by an image-only model; it sets the clip's length
+    masks, keypoints = classifier_inputs(frames)
+    codes = torch.zeros(1, masks.shape[1], 1)  # unread by an image-only model; it sets the clip's length
     with torch.no_grad():
         return torch.softmax(model(masks, keypoints, codes), -1)[0].numpy()
 
@@ -123,7 +131,7 @@ def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier
     if model is None:
         out.notes.append("no fabric classifier given (--classifier): the class is not named; none is shipped yet")
         return out
-    out.probabilities = classify(model, features)
+    out.probabilities = classify(model, stack_frames(features))
     out.fabric = out.classes.centre_fabric(out.fabric_class)
     return out
 
@@ -131,9 +139,8 @@ def perceive_video(source, shape, garment: str, start_s: float = 0.0, classifier
 def frames_picture(p: Perceived, count: int = 6) -> np.ndarray:
     """Up to `count` of the classifier's frames: the person tinted blue, the garment found
     red (RGB uint8, one row)."""
-    from PIL import Image
-
     from tryon.perceive.garment_mask import garment_mask
+    from tryon.perceive.person import person_tile
 
     tiles = []
     for k in p.frames[:: max(1, len(p.frames) // count)][:count]:
@@ -145,10 +152,7 @@ def frames_picture(p: Perceived, count: int = 6) -> np.ndarray:
         rest = (person.mask > 0.5) & ~m
         img[m] = 0.45 * img[m] + (140, 0, 0)
         img[rest] = 0.6 * img[rest] + (0, 0, 100)
-        x0, y0, x1, y1 = person.box
-        pad = (y1 - y0) // 12
-        crop = Image.fromarray(img.astype(np.uint8)).crop((max(0, x0 - pad), max(0, y0 - pad), x1 + pad, y1 + pad))
-        tiles.append(np.asarray(crop.resize((max(1, int(crop.width * 260 / crop.height)), 260))))
+        tiles.append(person_tile(img.astype(np.uint8), person.box, 260, pad=1 / 12))
     if not tiles:
         return np.zeros((260, 260, 3), np.uint8)
     return np.hstack(tiles)
@@ -179,7 +183,8 @@ def write_perceived(p: Perceived, out: Path, sim=None) -> dict:
             fh.write(json.dumps(p.fabric.to_arcsim_dict(), indent=1))
     if sim is not None:
         from tryon.io.frames import save_frames_npz
-        from tryon.learn.video_resimulation import camera_heading, side_by_side
+        from tryon.learn.video_resimulation import side_by_side
+        from tryon.perceive.motion_from_video import camera_heading
 
         save_frames_npz(out / "resimulated.npz", sim.garment, sim.faces, uv=sim.uv, times=sim.times,
                         body_vertices=sim.body.astype(np.float32), body_faces=sim.body_faces,

@@ -41,14 +41,6 @@ class Resimulation:
     seconds: float
 
 
-def camera_heading(motion) -> float:
-    """The heading (rad, about the vertical) `facing_forward` takes out of `motion`."""
-    from tryon.body.pose import axis_angle
-
-    R = axis_angle(motion.rotations[:1, motion.bone_labels.index("root")])
-    return float(np.arctan2(R[0, 1, 0], R[0, 0, 0]))
-
-
 def camera_direction(heading: float) -> np.ndarray:
     """The unit vector from the body toward the camera in the motion turned to the rest
     heading: the camera looks along +y in the motion as read (`motion_from_video`), so it
@@ -97,8 +89,7 @@ def resimulate(video, person, asked, garment: str, fabric, size: str | None = No
 def side_by_side(video, frames: list[int], sim: Resimulation, heading: float) -> np.ndarray:
     """The video's `frames` (indices into `video.frames`) cropped around the person, above
     the re-simulation at the same times seen from the camera's side (RGB uint8)."""
-    from PIL import Image
-
+    from tryon.perceive.person import person_tile
     from tryon.render.offscreen import Camera, RenderMesh, render_meshes
 
     w, h = TILE_WH
@@ -108,13 +99,8 @@ def side_by_side(video, frames: list[int], sim: Resimulation, heading: float) ->
         person = video.people[k]
         if person is None:
             continue
-        x0, y0, x1, y1 = (int(v / person.scale) for v in person.box)
-        pad = (y1 - y0) // 10
-        side = max(8, (y1 - y0) + 2 * pad)
-        cx = (x0 + x1) // 2
-        wide = max(8, int(side * w / h))
-        crop = Image.fromarray(video.frames.images[k]).crop((cx - wide // 2, y0 - pad, cx + wide // 2, y1 + pad))
-        tops.append(np.asarray(crop.resize((w, h))))
+        box = [v / person.scale for v in person.box]  # in the video frame's own pixels
+        tops.append(person_tile(video.frames.images[k], box, h, aspect=w / h))
         j = int(np.abs(sim.times - video.frames.times[k]).argmin())
         body = sim.body[j]
         centre = (body.min(0) + body.max(0)) / 2

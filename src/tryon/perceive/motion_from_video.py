@@ -270,6 +270,15 @@ def motion_of_person(shape, people: list, fps: float, name: str = "from video"):
     return BodyMotion(motion.rotations, motion.bone_labels, fps, travel, name), mean_deg
 
 
+def camera_heading(motion) -> float:
+    """The body's heading (rad, about the vertical) at the first frame of `motion` as read
+    from a video: what `facing_forward` takes out."""
+    from tryon.body.pose import axis_angle
+
+    R = axis_angle(motion.rotations[:1, motion.bone_labels.index("root")])
+    return float(np.arctan2(R[0, 1, 0], R[0, 0, 0]))
+
+
 def facing_forward(motion):
     """`motion` turned about the vertical so that the body faces at its first frame as it
     does at rest (the camera's view of the person is taken out; the motion then starts
@@ -279,8 +288,8 @@ def facing_forward(motion):
 
     root = motion.bone_labels.index("root")
     R = axis_angle(motion.rotations[:, root])
-    yaw = float(np.arctan2(R[0, 1, 0], R[0, 0, 0]))
-    c, s = np.cos(-yaw), np.sin(-yaw)
+    heading = camera_heading(motion)
+    c, s = np.cos(-heading), np.sin(-heading)
     turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     rotations = motion.rotations.copy()
     rotations[:, root] = matrix_to_axis_angle(turn @ R)

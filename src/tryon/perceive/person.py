@@ -267,6 +267,22 @@ def crop_mask(mask: np.ndarray, crop: tuple[float, float, float], size: int = CR
     return np.asarray(out, dtype=np.float32) / 255.0
 
 
+def person_tile(image: np.ndarray, box, height: int, aspect: float | None = None, pad: float = 0.1) -> np.ndarray:
+    """The person in `image` (their `box` x0, y0, x1, y1 in its pixels), with `pad` of the
+    box's height above, below and (without `aspect`) beside them, centred, as a tile
+    `height` pixels high: `aspect` (width / height) wide, or as wide as the padded box."""
+    from PIL import Image
+
+    x0, y0, x1, y1 = (float(v) for v in box)
+    margin = pad * (y1 - y0)
+    side = max(8.0, y1 - y0 + 2 * margin)
+    wide = side * aspect if aspect else x1 - x0 + 2 * margin
+    cx = (x0 + x1) / 2
+    crop = Image.fromarray(image).crop((int(cx - wide / 2), int(y0 - margin), int(cx + wide / 2), int(y0 - margin + side)))
+    width = int(round(height * aspect)) if aspect else max(1, int(crop.width * height / crop.height))
+    return np.asarray(crop.resize((width, height)))
+
+
 @dataclass
 class PersonCrop:
     """What the body-from-photos regression reads of one person: the mask in the square

@@ -34,7 +34,8 @@ from tryon.fabric.wang2011 import MEASURED_FABRICS, WangFabric
 from tryon.perceive.fabric_classes import FabricClasses
 
 GRID_POINTS = 5      # simulations spread over the stretching range, its ends included
-GOLDEN_STEPS = 4     # simulations of the golden-section search inside the best grid point's neighbours
+GOLDEN_STEPS = 4     # the fewest simulations of the golden-section search inside the best grid point's neighbours
+RESOLUTION_LOG10 = 0.025  # the golden section goes on until its bracket is this narrow (about 6 % in stiffness)
 INVERSE_PHI = (math.sqrt(5.0) - 1.0) / 2.0
 EDGE_MARGIN = 1e-3   # of the class's width: the searched range stays this far inside the class
 
@@ -179,14 +180,26 @@ def motion_after(motion, shape, t0: float, duration: float, fps: float = 30.0):
     return moved, start, offset
 
 
+def golden_steps(width: float, grid: int = GRID_POINTS, resolution: float = RESOLUTION_LOG10,
+                 least: int = GOLDEN_STEPS) -> int:
+    """Golden-section points that narrow the bracket a `grid` over `width` (log10) leaves
+    (two grid spacings) to `resolution`, and at least `least`: the first two points
+    narrow it by 1/phi, each further one by 1/phi again."""
+    bracket = 2.0 * width / (grid - 1)
+    if bracket <= resolution:
+        return least
+    return max(least, 1 + math.ceil(math.log(bracket / resolution) / math.log(1.0 / INVERSE_PHI)))
+
+
 def refine_clip_fabric(clip: ClipToRefine, classes: FabricClasses, c: int, bases: tuple[str, ...] = MEASURED_FABRICS,
-                       bounds: tuple[float, float] | None = None, grid: int = GRID_POINTS, golden: int = GOLDEN_STEPS,
+                       bounds: tuple[float, float] | None = None, grid: int = GRID_POINTS, golden: int | None = None,
                        progress: Callable[[str], None] | None = None) -> Refinement:
     """The fabric of class c whose simulation follows `clip` best. First the base: each
     measured fabric of `bases` at the class's centre, the one that follows best kept (its
     density, anisotropy and non-linearity: what the class does not say). Then its
     stretching, searched over `bounds` (the class's stretching range by default) with the
-    bending at the class's centre."""
+    bending at the class's centre: `golden` golden-section points after the grid, by
+    default as many as the range's width needs (`golden_steps`)."""
     if not bases:
         raise TryonError("the refinement needs at least one measured fabric to start from")
     (s0, s1), (b0, b1) = classes.box(c)
@@ -195,6 +208,7 @@ def refine_clip_fabric(clip: ClipToRefine, classes: FabricClasses, c: int, bases
     if not bounds[1] > bounds[0] or grid < 2:
         raise TryonError(f"the search needs a range that rises and at least 2 grid points, got {bounds}, {grid}")
     centre, bend = (s0 + s1) / 2, (b0 + b1) / 2
+    golden = golden_steps(bounds[1] - bounds[0], grid) if golden is None else golden
     t0 = time.perf_counter()
     history: list[dict] = []
 
