@@ -88,3 +88,14 @@ def test_a_printed_shirt_is_refined_with_the_print_and_drawn_with_it(tmp_path):
     assert main(["drape", "--garment", "skirt", "--print", str(png), "--height-cm", "168", "--weight-kg", "62",
                  "--gender", "female", "--out", str(tmp_path / "skirt"), "--quiet"]) == 2
     assert not (tmp_path / "skirt").exists()
+
+
+def test_the_shipped_model_of_one_fabric_says_when_another_is_asked():
+    from tryon.fabric import load_fabric
+    from tryon.learn.model import load_shipped
+
+    model = load_shipped("tshirt")
+    assert model.config.fabric == 0 and model.trained_fabric() == "gray-interlock"
+    assert model.coverage_notes("female", 165, 22, load_fabric("gray-interlock")) == []
+    notes = model.coverage_notes("female", 165, 22, load_fabric("11oz-black-denim"))
+    assert notes and "gray-interlock only" in notes[0] and "11oz-black-denim" in notes[0]

@@ -6,7 +6,8 @@ tryon.learn.refine), `skinning` (its prior: the reference drape carried by
 skinning), `nearest` (nearest training body of the same gender and size) and
 `tailornet-pca` (MLP to PCA coefficients, L2), the last two fitted on the dataset's
 training split here (left out on data without one, such as the held-out drapes that ship
-with the model). Keys per record: method, split, samples, mean_error_cm,
+with the model). Keys per record: method, split, garment, fabric (`all`, or on data whose
+fabric is drawn per drape also one record per fabric for the learned methods), samples, mean_error_cm,
 p95_error_cm, interpenetration_pct, edge_error_pct, potential_ratio, inference_ms,
 refine_s, simulation_s, and error_vs_skinning (mean error over the skinning baseline's).
 `outside_dataset` holds `tryon drape --method learned --refine` against `tryon drape` on
@@ -28,22 +29,21 @@ from tryon.io.json_safe import dumps_json
 SPLITS = ("test", "extrapolation")
 
 
-def _refined(model, data, judge, learned, started: float) -> tuple[np.ndarray, float, float]:
-    """The learned predictions relaxed by the simulator: (positions, inference ms, mean refine s)."""
-    from tryon.fabric import load_fabric
+def _refined(model, data, judge, learned, started: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """The learned predictions relaxed by the simulator in each drape's fabric: (positions,
+    inference ms, refine s per drape)."""
     from tryon.learn.data import GENDERS
     from tryon.learn.refine import refine_drape
 
     pred, ms = learned
-    fabric = load_fabric(data.manifest.spec["fabric"])
     sizes = data.manifest.spec["sizes"]
     out, secs = np.zeros_like(pred), []
     for i, body in enumerate(judge.bodies):
         garment = model.reference_garment(GENDERS[int(judge.ts.gender[i])], sizes[int(judge.ts.size[i])])
-        x, stats = refine_drape(pred[i].astype(float), garment, body, fabric)
+        x, stats = refine_drape(pred[i].astype(float), garment, body, judge.fabrics[i])
         out[i], _ = x, secs.append(stats["refine_s"])
         progress_line("learned", f"refined {i + 1} of {len(judge.bodies)} in {stats['refine_s']:.1f} s", started)
-    return out, ms, float(np.mean(secs))
+    return out, ms, np.asarray(secs)
 
 
 def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: str | Path | None = None,
@@ -73,7 +73,7 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         def run(i: int):
             b = batch_tensors(sub, np.array([i]), model)
             with torch.no_grad():
-                net(b["body_in"], b["gender"], b["size"], b["prior"])
+                net(b["body_in"], b["gender"], b["size"], b["prior"], b["fabric"])
         return run
 
     records = []
@@ -92,12 +92,15 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         methods.update({name: timed(b.predict, sub) for name, b in baselines.items()})
         rows = {name: judge.record(name, split, pred, ms) for name, (pred, ms) in methods.items()}
         refined = _refined(model, data, judge, methods["learned"], t0)
-        rows["learned+refine"] = judge.record("learned+refine", split, *refined)
+        rows["learned+refine"] = judge.record("learned+refine", split, refined[0], refined[1], float(refined[2].mean()))
         if split == "test":
-            picture = comparison_picture(model, judge, methods["learned"][0], refined[0], data.manifest.spec["fabric"])
+            picture = comparison_picture(model, judge, methods["learned"][0], refined[0])
         for r in rows.values():
             r["error_vs_skinning"] = r["mean_error_cm"] / rows["skinning"]["mean_error_cm"]
         records.extend(rows.values())
+        if len(set(judge.fabric_labels)) > 1:  # drawn fabrics: the model's error in each
+            records.extend(judge.records_by_fabric("learned", split, *methods["learned"]))
+            records.extend(judge.records_by_fabric("learned+refine", split, *refined))
     from tryon.bench.learned_vs_drape import outside_dataset_records
 
     if not quick:
@@ -121,10 +124,10 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
 ERROR_SCALE_CM = 2.0  # top of the comparison picture's error colours
 
 
-def comparison_picture(model, judge, learned: np.ndarray, refined: np.ndarray, fabric: str) -> np.ndarray:
+def comparison_picture(model, judge, learned: np.ndarray, refined: np.ndarray) -> np.ndarray:
     """The test drape of median learned error, front view: the prediction and the refined
     prediction coloured by each vertex's distance to the simulated drape, and the
-    simulated drape itself in the fabric's colour, labelled with their mean errors."""
+    simulated drape itself in its fabric's colour, labelled with their mean errors."""
     from PIL import Image, ImageDraw
 
     from tryon.drape.outputs import render_views
@@ -140,7 +143,7 @@ def comparison_picture(model, judge, learned: np.ndarray, refined: np.ndarray, f
     for title, x, e in (("learned", learned[i], err["learned"][i]), ("learned + refine", refined[i], err["refined"][i]),
                         ("simulated", ts.truth[i], None)):
         if e is None:
-            colors = np.tile(np.asarray(appearance(fabric).color), (len(x), 1))
+            colors = np.tile(np.asarray(appearance(judge.fabric_labels[i]).color), (len(x), 1))
         else:
             colors = scalar_to_rgb(e, 0.0, ERROR_SCALE_CM, cmap="turbo")
         img = render_views(body.vertices, body.faces, x.astype(float), faces, colors, size=(420, 620), views=("front",))[0]

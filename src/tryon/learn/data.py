@@ -1,7 +1,8 @@
 """Training tensors from a drape dataset (`tryon.dataset`), cached next to the model.
 
 Per sample: the target body's region vertices and normals, the skinned prior, the true
-drape, and the truth's candidate closest body vertices (for the c/d split of the loss)."""
+drape, the truth's candidate closest body vertices (for the c/d split of the loss), and
+the features of the drape's fabric."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from tryon.sim.geometry import area_vertex_normals
 from tryon.learn.topology import build_hierarchy
 
 CANDIDATES = 8
+CACHE_VERSION = 2  # 2: the fabric's features
 GENDERS = ("male", "female")
 
 
@@ -32,6 +34,7 @@ class TrainingSet:
     gender: np.ndarray      # [S] 0 male, 1 female
     size: np.ndarray        # [S] index into the dataset's sizes
     shape: np.ndarray       # [S,P] Anny shape vectors
+    fabric: np.ndarray      # [S,F] `fabric_features` of each drape's fabric
     body: np.ndarray        # [S,M,3] region vertices
     normals: np.ndarray     # [S,M,3]
     prior: np.ndarray       # [S,N,3]
@@ -74,11 +77,22 @@ def dataset_key(data: DrapeDataset) -> str:
     return h.hexdigest()[:12]
 
 
+def drape_fabrics(data: DrapeDataset, rows: np.ndarray) -> np.ndarray:
+    """[S,F] the features of each drape's fabric: recorded per drape when the dataset draws
+    its fabrics (`--fabrics`), else those of the dataset's one fabric."""
+    if "fabric_features" in data.arrays:
+        return data.arrays["fabric_features"][rows].astype(np.float32)
+    from tryon.fabric import load_fabric
+    from tryon.fabric.blend import fabric_features
+
+    return np.repeat(fabric_features(load_fabric(data.manifest.spec["fabric"]))[None], len(rows), 0)
+
+
 def training_set(data: DrapeDataset, priors: dict, region: np.ndarray, cache: Path | None = None,
                  progress: bool = True) -> TrainingSet:
     """Every good sample of the dataset as arrays (cached in `cache` by the dataset's content)."""
     if cache is not None:
-        path = cache / f"features-{dataset_key(data)}.npz"
+        path = cache / f"features-{CACHE_VERSION}-{dataset_key(data)}.npz"
         if path.exists():
             with np.load(path, allow_pickle=False) as z:
                 return TrainingSet(**{k: z[k] for k in z.files})
@@ -99,7 +113,8 @@ def training_set(data: DrapeDataset, priors: dict, region: np.ndarray, cache: Pa
         cols["truth"].append(truth.astype(np.float32))
         cols["cand"].append(cand.astype(np.int32))
     ts = TrainingSet(rows, a["split"][rows].astype(str), a["gender"][rows].astype(np.int64), a["size"][rows].astype(np.int64),
-                     a["shape_params"][rows].astype(np.float32), *(np.stack(cols[k]) for k in cols))
+                     a["shape_params"][rows].astype(np.float32), drape_fabrics(data, rows),
+                     *(np.stack(cols[k]) for k in cols))
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")

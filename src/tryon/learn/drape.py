@@ -48,24 +48,26 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
     target = posed_body(person.shape, "a", drafting_measurements(person.shape)["crotch_height"])
     timings["fit_body_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()
-    x = model.predict_vertices(target.vertices, request.body.gender, size)
+    fabric = load_fabric(request.fabric)
+    x = model.predict_vertices(target.vertices, request.body.gender, size, fabric)
     timings["inference_ms"] = 1000.0 * (time.perf_counter() - t2)
     refined: dict = {}
     if refine:
         from tryon.learn.refine import refine_drape
 
-        x, refined = refine_drape(x, garment, target, load_fabric(request.fabric), request.thickness, request.friction,
+        x, refined = refine_drape(x, garment, target, fabric, request.thickness, request.friction,
                                   request.dt, rest_speed=request.rest_speed, regions=request.material_regions(garment),
                                   until=refine_until(garment, target) if refine_until else None)
         timings["refine_s"] = refined["refine_s"]
     result = DrapeResult(request, person, None, garment, target.vertices, target.faces, x, [x], [0.0], timings=timings)
     t3 = time.perf_counter()
     body = Obstacle("body", target.vertices, target.faces)
-    sim_model = cloth_on_body(garment.cloth_mesh(x), load_fabric(request.fabric), body, request.thickness,
+    sim_model = cloth_on_body(garment.cloth_mesh(x), fabric, body, request.thickness,
                               friction=request.friction, regions=request.material_regions(garment))
     result.metrics = drape_metrics(result, ImplicitEulerSolver(sim_model))
     result.metrics.update(refined)
-    result.metrics["notes"] = model.coverage_notes(request.body.gender, person.achieved["height_cm"], person.achieved["bmi"])
+    result.metrics["notes"] = model.coverage_notes(request.body.gender, person.achieved["height_cm"], person.achieved["bmi"],
+                                                   fabric)
     result.metrics.update({"method": "learned+refine" if refine else "learned", "model": model.card.get("trained", "?"), "steps": refined.get("refine_steps", 0),
                            "settled": refined["refine_final_speed"] <= request.rest_speed if refine else None,
                            "simulated_s": 0.0, "morph_s": 0.0, "speed_recoveries": [], "failsafe_steps": 0})

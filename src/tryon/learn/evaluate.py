@@ -2,9 +2,10 @@
 
 One record per (method, split): vertex error (cm, mean and 95th percentile), the share of
 garment vertices inside the body (the drape report's measure), the relative edge-length
-error, the potential energy (gravity from the floor + stretching + bending with the
-dataset's fabric) relative to the simulated drape's, the time per drape at batch 1, and
-the simulator's own time for the same samples."""
+error, the potential energy (gravity from the floor + stretching + bending in the drape's
+own fabric) relative to the simulated drape's, the time per drape at batch 1, and the
+simulator's own time for the same samples. On data whose fabric is drawn per drape, the
+same measures per fabric (`records_by_fabric`)."""
 
 from __future__ import annotations
 
@@ -29,17 +30,24 @@ class Judge:
     """Per-sample measures of predicted garments on one evaluation set."""
 
     def __init__(self, data: DrapeDataset, ts: TrainingSet, model: DrapeModel):
-        from tryon.fabric import load_fabric
+        from tryon.dataset.drapes import unit_fabric
         from tryon.sim.model import ClothModel
 
         self.ts = ts
+        self.garment = model.garment
         self.edges = _edges(model.faces)
         self.bodies = [a_posed_body(shape_params(s)) for s in ts.shape]
-        fabric = load_fabric(data.manifest.spec["fabric"])
+        units = data.arrays["unit"][ts.rows]
+        self.fabrics = [unit_fabric(data.manifest, int(u))[0] for u in units]   # each drape's own
+        self.fabric_labels = [fabric_label(data.manifest.spec, data.arrays, int(r)) for r in ts.rows]
         sizes = data.manifest.spec["sizes"]
-        self.cloth = {}
-        for g, s in {(GENDERS[int(gi)], sizes[int(si)]) for gi, si in zip(ts.gender, ts.size)}:
-            self.cloth[(g, s)] = ClothModel(model.reference_garment(g, s).cloth_mesh(), fabric)
+        cloth: dict = {}
+        self.cloth = []
+        for gi, si, fabric in zip(ts.gender, ts.size, self.fabrics):
+            key = (GENDERS[int(gi)], sizes[int(si)], fabric.name)
+            if key not in cloth:
+                cloth[key] = ClothModel(model.reference_garment(*key[:2]).cloth_mesh(), fabric)
+            self.cloth.append(cloth[key])
         self.sim_s = data.arrays["wall_s"][ts.rows].astype(float)
         self.sizes = sizes
 
@@ -53,19 +61,45 @@ class Judge:
         pen, pot = [], []
         for i, body in enumerate(self.bodies):
             pen.append(penetration(pred[i].astype(float), body.vertices, body.faces)["penetration_pct"])
-            cloth = self.cloth[(GENDERS[int(ts.gender[i])], self.sizes[int(ts.size[i])])]
+            cloth = self.cloth[i]
             pot.append(potential_energy(cloth, pred[i].astype(float))["total_J"]
                        / potential_energy(cloth, ts.truth[i].astype(float))["total_J"])
         return {"err": err, "edge": 100.0 * np.abs(lp / np.maximum(lt, 1e-6) - 1.0), "pen": np.asarray(pen),
                 "pot": np.asarray(pot)}
 
     def record(self, method: str, split: str, pred: np.ndarray, inference_ms: float, refine_s: float = 0.0) -> dict:
+        return self._summary(method, split, self.measures(pred), np.ones(len(pred), bool), inference_ms, refine_s, "all")
+
+    def records_by_fabric(self, method: str, split: str, pred: np.ndarray, inference_ms: float,
+                          refine_s: np.ndarray | None = None) -> list[dict]:
+        """One record per fabric of the drapes (a blend of two measured fabrics: `blended`);
+        `refine_s` per drape."""
         m = self.measures(pred)
-        return {"method": method, "split": split, "samples": len(pred),
-                "mean_error_cm": float(m["err"].mean()), "p95_error_cm": float(np.percentile(m["err"], 95)),
-                "interpenetration_pct": float(m["pen"].mean()), "edge_error_pct": float(m["edge"].mean()),
-                "potential_ratio": float(np.median(m["pot"])), "inference_ms": inference_ms, "refine_s": refine_s,
-                "simulation_s": float(self.sim_s.mean())}
+        labels = np.asarray(self.fabric_labels)
+        out = []
+        for label in sorted(set(self.fabric_labels)):
+            keep = labels == label
+            secs = float(np.mean(refine_s[keep])) if refine_s is not None else 0.0
+            out.append(self._summary(method, split, m, keep, inference_ms, secs, label))
+        return out
+
+    def _summary(self, method: str, split: str, m: dict, keep: np.ndarray, inference_ms: float, refine_s: float,
+                 fabric: str) -> dict:
+        return {"method": method, "split": split, "garment": self.garment, "fabric": fabric, "samples": int(keep.sum()),
+                "mean_error_cm": float(m["err"][keep].mean()), "p95_error_cm": float(np.percentile(m["err"][keep], 95)),
+                "interpenetration_pct": float(m["pen"][keep].mean()), "edge_error_pct": float(m["edge"][keep].mean()),
+                "potential_ratio": float(np.median(m["pot"][keep])), "inference_ms": inference_ms,
+                "refine_s": refine_s, "simulation_s": float(self.sim_s[keep].mean())}
+
+
+def fabric_label(spec: dict, arrays: dict, row: int) -> str:
+    """The fabric a drape wears, by name: the dataset's one fabric, the measured fabric drawn,
+    or `blended` for a blend of two."""
+    names = spec.get("fabrics")
+    if not names or "fabric_a" not in arrays:
+        return spec["fabric"]
+    a, b = int(arrays["fabric_a"][row]), int(arrays["fabric_b"][row])
+    return names[a] if a == b else "blended"
 
 
 def timed(predict: Callable[[TrainingSet], np.ndarray], ts: TrainingSet, one: Callable[[int], object] | None = None,

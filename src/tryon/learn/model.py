@@ -33,7 +33,8 @@ class ModelError(TryonError):
 
 @dataclass
 class DrapeModel:
-    """Everything needed to predict a drape for a body, gender and size."""
+    """Everything needed to predict a drape for a body, gender, size and (a model of many
+    fabrics: `config.fabric` > 0) fabric."""
 
     garment: str
     sizes: list[str]
@@ -45,6 +46,7 @@ class DrapeModel:
     faces: np.ndarray
     garments: dict = field(default_factory=dict)  # (gender, size) -> the reference DressedGarment (rest shape, panels)
     card: dict = field(default_factory=dict)
+    fabrics: dict = field(default_factory=dict)  # many fabrics: the features' "mean", "scale", "low", "high", the "names"
     net: DrapeNet | None = None
 
     def build_net(self) -> DrapeNet:
@@ -57,6 +59,25 @@ class DrapeModel:
         """[M,6]: the region's positions and their displacement from the mean body (x10)."""
         r = body_vertices[self.region]
         return np.concatenate([r, 10.0 * (r - self.mean_region)], 1).astype(np.float32)
+
+    def fabric_input(self, features: np.ndarray) -> np.ndarray:
+        """[..., F] fabric features (`fabric_features`) normalised as the network reads them."""
+        return ((np.asarray(features, np.float64) - self.fabrics["mean"]) / self.fabrics["scale"]).astype(np.float32)
+
+    def fabric_features_of(self, fabric) -> np.ndarray | None:
+        """The features of `fabric` (a Fabric) that a model of many fabrics reads; None for a
+        model of one fabric. A model of many fabrics refuses to go without one."""
+        if not self.config.fabric:
+            return None
+        if fabric is None:
+            raise ModelError(f"the learned {self.garment} model drapes many fabrics: name the fabric")
+        from tryon.fabric.blend import fabric_features
+
+        return fabric_features(fabric)
+
+    def trained_fabric(self) -> str | None:
+        """The one fabric a model of one fabric was trained in (None for a model of many)."""
+        return None if self.config.fabric else self.card.get("manifest", {}).get("spec", {}).get("fabric")
 
     def size_onehot(self, size: str) -> np.ndarray:
         if size not in self.sizes:
@@ -79,8 +100,9 @@ class DrapeModel:
                              "use --method simulate")
         return self.priors[(gender, size)].carry(body_vertices)
 
-    def coverage_notes(self, gender: str, height_cm: float, bmi: float) -> list[str]:
-        """Where a body lies outside what the model was trained on (empty when inside)."""
+    def coverage_notes(self, gender: str, height_cm: float, bmi: float, fabric=None) -> list[str]:
+        """Where a body (and `fabric`, a Fabric) lies outside what the model was trained on
+        (empty when inside)."""
         spec = self.card.get("manifest", {}).get("spec", {})
         r = spec.get("ranges")
         if not r:
@@ -94,23 +116,40 @@ class DrapeModel:
         h = r["height_cm"].get(gender)
         if h and not h[0] <= height_cm <= h[1]:
             notes.append(f"stature {height_cm:.0f} cm is outside the model's training range {h[0]:g}-{h[1]:g} cm")
+        notes += self._fabric_notes(fabric)
         return [n + ": refine (--refine) or simulate (--method simulate) to be sure" for n in notes]
+
+    def _fabric_notes(self, fabric) -> list[str]:
+        if fabric is None:
+            return []
+        one = self.trained_fabric()
+        if one is not None:
+            return [f"the model was trained in {one} only, not {fabric.name}"] if fabric.name != one else []
+        from tryon.fabric.blend import FEATURE_NAMES
+
+        f = self.fabric_features_of(fabric)
+        low, high = np.asarray(self.fabrics["low"]), np.asarray(self.fabrics["high"])
+        outside = [n for n, v, lo, hi in zip(FEATURE_NAMES, f, low, high) if not lo - 1e-6 <= v <= hi + 1e-6]
+        return [f"fabric {fabric.name} lies outside the model's training fabrics in {', '.join(outside)}"] if outside else []
 
     # ------------------------------------------------------------------ prediction
     @torch.no_grad()
-    def predict_vertices(self, body_vertices: np.ndarray, gender: str, size: str) -> np.ndarray:
-        """The draped garment [N,3] on an A-posed Anny body (vertices [V,3])."""
+    def predict_vertices(self, body_vertices: np.ndarray, gender: str, size: str, fabric=None) -> np.ndarray:
+        """The draped garment [N,3] on an A-posed Anny body (vertices [V,3]), in `fabric` (a
+        Fabric; a model of one fabric drapes its own whatever is given)."""
         onehot = torch.from_numpy(self.size_onehot(size))[None]
+        features = self.fabric_features_of(fabric)
         net = self.build_net().eval()
         body = torch.from_numpy(self.body_input(body_vertices))[None]
         prior = torch.from_numpy(self.prior(gender, size, body_vertices).astype(np.float32))[None]
-        out = net(body, torch.tensor([GENDER_CODE[gender]]), onehot, prior)
+        fabric_in = None if features is None else torch.from_numpy(self.fabric_input(features))[None]
+        out = net(body, torch.tensor([GENDER_CODE[gender]]), onehot, prior, fabric_in)
         return out[0][0].double().numpy()
 
-    def predict(self, params: ShapeParams, gender: str, size: str) -> tuple[np.ndarray, "object"]:
+    def predict(self, params: ShapeParams, gender: str, size: str, fabric=None) -> tuple[np.ndarray, "object"]:
         """(garment vertices, the A-posed body) for Anny shape parameters."""
         body = a_posed_body(params)
-        return self.predict_vertices(body.vertices, gender, size), body
+        return self.predict_vertices(body.vertices, gender, size, fabric), body
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
@@ -125,7 +164,8 @@ class DrapeModel:
         for k, v in net.state_dict().items():
             arrays[f"w_{k}"] = v.numpy().astype(np.float16 if v.dtype == torch.float32 and v.numel() > 4096 else v.numpy().dtype)
         meta = {"garment": self.garment, "sizes": self.sizes, "config": self.config.to_dict(), "card": self.card,
-                "priors": [list(k) for k in self.priors], "format": 1}
+                "priors": [list(k) for k in self.priors], "format": 1,
+                "fabrics": {k: np.asarray(v).tolist() for k, v in self.fabrics.items()}}
         arrays.update({"region": self.region.astype(np.int32), "mean_region": self.mean_region.astype(np.float32),
                        "faces": self.faces.astype(np.int32), "meta": np.asarray(json.dumps(meta))})
         with atomic_write(path, "wb") as fh:
@@ -155,7 +195,8 @@ class DrapeModel:
                                                   a[f"g_{g}_{s}_face_panel"], Pattern.from_dict(json.loads(str(a[f"g_{g}_{s}_pattern"]))),
                                                   a[f"g_{g}_{s}_seam_vertices"], {"source": f"learned {meta['garment']} {s}"})
         m = cls(meta["garment"], meta["sizes"], NetConfig(**meta["config"]), h, priors, a["region"].astype(np.int64),
-                a["mean_region"].astype(np.float64), faces, garments, meta["card"])
+                a["mean_region"].astype(np.float64), faces, garments, meta["card"],
+                {k: v if k == "names" else np.asarray(v, np.float64) for k, v in meta.get("fabrics", {}).items()})
         net = m.build_net()
         state = {k[2:]: torch.from_numpy(np.asarray(v, np.float32) if v.dtype == np.float16 else v)
                  for k, v in a.items() if k.startswith("w_")}

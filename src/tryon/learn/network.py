@@ -1,7 +1,8 @@
 """The shape-aware draping network.
 
 - `BodyEncoder`: a 1D CNN along the body region's vertices (Anny's index order keeps
-  neighbours mostly together), with the wearer's gender and the garment size, to a latent.
+  neighbours mostly together), with the wearer's gender, the garment size and (in a model
+  of many fabrics) the fabric's features, to a latent.
 - `HierarchicalDecoder`: graph convolutions over the garment mesh from the coarsest of
   four levels to the finest, y = f(A_theta x W) with a learned weight A_theta[i, j] on
   every mesh edge and self loop; each level's features are carried up barycentrically in
@@ -29,6 +30,7 @@ class NetConfig:
     width: int = 64
     embed: int = 8
     sizes: int = 3
+    fabric: int = 0  # fabric features the encoder reads (`tryon.fabric.blend.FEATURE_NAMES`); 0: one fabric
     eigen: int = 128
     spectral: bool = True
     levels: int = 4
@@ -82,13 +84,21 @@ class BodyEncoder(nn.Module):
         for a, b in zip(c[:-1], c[1:]):
             layers += [nn.Conv1d(a, b, 5, stride=2, padding=2), nn.GELU()]
         self.conv = nn.Sequential(*layers, nn.AdaptiveAvgPool1d(8))
-        self.head = nn.Sequential(nn.Linear(128 * 8 + 1 + cfg.sizes, cfg.latent), nn.GELU(),
+        self.fabric = cfg.fabric
+        self.head = nn.Sequential(nn.Linear(128 * 8 + 1 + cfg.sizes + cfg.fabric, cfg.latent), nn.GELU(),
                                   nn.Linear(cfg.latent, cfg.latent))
 
-    def forward(self, body: torch.Tensor, gender: torch.Tensor, size: torch.Tensor) -> torch.Tensor:
-        """body [B,M,6] (positions and displacement from the mean body, scaled), gender [B], size [B,S]."""
+    def forward(self, body: torch.Tensor, gender: torch.Tensor, size: torch.Tensor,
+                fabric: torch.Tensor | None = None) -> torch.Tensor:
+        """body [B,M,6] (positions and displacement from the mean body, scaled), gender [B],
+        size [B,S], fabric [B,F] (normalised features; read only by a model of many fabrics)."""
         h = self.conv(body.transpose(1, 2)).flatten(1)
-        return self.head(torch.cat([h, gender[:, None].float(), size.float()], 1))
+        parts = [h, gender[:, None].float(), size.float()]
+        if self.fabric:
+            if fabric is None or fabric.shape[-1] != self.fabric:
+                raise ValueError(f"this network reads {self.fabric} fabric features")
+            parts.append(fabric.float())
+        return self.head(torch.cat(parts, 1))
 
 
 class HierarchicalDecoder(nn.Module):
@@ -145,9 +155,10 @@ class DrapeNet(nn.Module):
             out.append(apply_sparse(d, out[-1]))
         return out
 
-    def forward(self, body: torch.Tensor, gender: torch.Tensor, size: torch.Tensor, prior: torch.Tensor) -> list[torch.Tensor]:
+    def forward(self, body: torch.Tensor, gender: torch.Tensor, size: torch.Tensor, prior: torch.Tensor,
+                fabric: torch.Tensor | None = None) -> list[torch.Tensor]:
         """Predicted garments [B,N_k,3] per level, finest first."""
-        latent = self.encoder(body, gender, size)
+        latent = self.encoder(body, gender, size, fabric)
         priors = self.restrict(prior)
         centre = prior.mean(1, keepdim=True)
         corr = self.decoder(latent, [p - centre for p in priors])

@@ -105,8 +105,8 @@ def refined_unit(manifest: Manifest, model_path: str, unit: int) -> dict[str, np
     out = sample_header(manifest, body, size, unit)
     target = a_posed_body(body.params)
     garment = model.reference_garment(body.gender, size)
-    pred = model.predict_vertices(target.vertices, body.gender, size)
     fabric = load_fabric(spec["fabric"])
+    pred = model.predict_vertices(target.vertices, body.gender, size, fabric)
     try:
         x, stats = refine_drape(pred, garment, target, fabric)
     except TryonError as exc:  # e.g. a predicted triangle collapsed: the sample is recorded as failed

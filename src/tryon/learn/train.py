@@ -51,7 +51,9 @@ def batch_tensors(ts: TrainingSet, idx: np.ndarray, model: DrapeModel) -> dict[s
     body = ts.body[idx].astype(np.float64)
     inp = np.concatenate([body, 10.0 * (body - model.mean_region[None])], 2).astype(np.float32)
     onehot = np.eye(len(model.sizes), dtype=np.float32)[ts.size[idx]]
+    fabric = torch.from_numpy(model.fabric_input(ts.fabric[idx])) if model.config.fabric else None
     return {"body_in": torch.from_numpy(inp), "gender": torch.from_numpy(ts.gender[idx]), "size": torch.from_numpy(onehot),
+            "fabric": fabric,
             "prior": torch.from_numpy(ts.prior[idx]), "truth": torch.from_numpy(ts.truth[idx]),
             "body": torch.from_numpy(ts.body[idx]), "normals": torch.from_numpy(ts.normals[idx]),
             "cand": torch.from_numpy(ts.cand[idx].astype(np.int64))}
@@ -63,7 +65,7 @@ def predict_set(model: DrapeModel, ts: TrainingSet, batch: int = 16) -> np.ndarr
     with torch.no_grad():
         for s in range(0, len(ts.rows), batch):
             b = batch_tensors(ts, np.arange(s, min(s + batch, len(ts.rows))), model)
-            out.append(net(b["body_in"], b["gender"], b["size"], b["prior"])[0].numpy())
+            out.append(net(b["body_in"], b["gender"], b["size"], b["prior"], b["fabric"])[0].numpy())
     return np.concatenate(out) if out else np.zeros((0, model.hierarchy.n, 3), np.float32)
 
 
@@ -91,8 +93,10 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
     if len(val.rows) == 0:  # a small dataset drew no validation body: select on the training error
         val, selected_on = train, "train"
     config.net.sizes = len(data.manifest.spec["sizes"])
+    fabrics = fabric_normalisation(train.fabric, data.manifest.spec)
+    config.net.fabric = train.fabric.shape[1] if fabrics else 0
     model = DrapeModel(data.manifest.spec["garment"], list(data.manifest.spec["sizes"]), config.net, hierarchy, priors,
-                       region, train.body.astype(np.float64).mean(0), data.faces, dict(data.references))
+                       region, train.body.astype(np.float64).mean(0), data.faces, dict(data.references), fabrics=fabrics)
     torch.manual_seed(config.seed)  # here: preparing the samples may draw from torch's generator
     net = model.build_net()
     loss_fn = DrapeLoss(hierarchy, config.weights)
@@ -119,7 +123,7 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
                    disable=not progress, leave=False)
         for s in bar:
             b = batch_tensors(train, order[s:s + config.batch], model)
-            preds = net(b["body_in"], b["gender"], b["size"], b["prior"])
+            preds = net(b["body_in"], b["gender"], b["size"], b["prior"], b["fabric"])
             truths = net.restrict(b["truth"])
             loss, parts = loss_fn(preds, truths, b["body"], b["normals"], b["cand"])
             opt.zero_grad()
@@ -160,6 +164,18 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
     return best
 
 
+def fabric_normalisation(features: np.ndarray, spec: dict) -> dict:
+    """How a model of many fabrics reads them: the training drapes' features centred and
+    scaled by their spread, their range (beyond it the model extrapolates) and the measured
+    fabrics drawn from; empty when every training drape wears one fabric."""
+    f = features.astype(np.float64)
+    spread = f.std(0)
+    if not len(f) or spread.max() < 1e-6:
+        return {}
+    return {"mean": f.mean(0), "scale": np.where(spread > 1e-6, spread, 1.0), "low": f.min(0), "high": f.max(0),
+            "names": list(spec.get("fabrics") or [spec.get("fabric")])}
+
+
 def mean_error_cm(pred: np.ndarray, truth: np.ndarray) -> float:
     return float(100.0 * np.linalg.norm(pred - truth, axis=-1).mean()) if len(truth) else float("nan")
 
@@ -192,6 +208,14 @@ def _merged_lines(manifest: dict) -> list[str]:
     return lines
 
 
+def _fabric_words(spec: dict) -> str:
+    if not spec.get("fabrics"):
+        return f"fabric {spec['fabric']} (Wang et al. 2011, measured)"
+    mixed = f"; {spec['fabric_mix']:.0%} of the drapes blended between two of them" if spec.get("fabric_mix") else ""
+    return (f"the fabric drawn per drape from {len(spec['fabrics'])} measured ones (Wang et al. 2011: "
+            f"{', '.join(spec['fabrics'])}{mixed})")
+
+
 def card_markdown(card: dict) -> str:
     """The model card for people: what the model is, its data, its split and its numbers."""
     spec = card["manifest"]["spec"]
@@ -202,7 +226,7 @@ def card_markdown(card: dict) -> str:
              "## Data", "",
              f"- {sum(card['samples'].values())} simulated drapes (`tryon dataset drape`, seed {card['manifest']['seed']}, "
              f"software {card['manifest']['software_version']}): {spec['garment']} in {', '.join(spec['sizes'])}, "
-             f"fabric {spec['fabric']} (Wang et al. 2011, measured), {spec['edge_length'] * 100:.1f} cm edges.",
+             f"{_fabric_words(spec)}, {spec['edge_length'] * 100:.1f} cm edges.",
              f"- Bodies: Anny (Apache-2.0, CC0 data), genders {', '.join(r['genders'])}, BMI uniform in "
              f"{r['bmi'][0]:g}-{r['bmi'][1]:g}, stature uniform per gender "
              + ", ".join(f"{g} {h[0]:g}-{h[1]:g} cm" for g, h in r["height_cm"].items()) + f", age {r['age_years'][0]:g}-{r['age_years'][1]:g}.",

@@ -83,9 +83,10 @@ def run_phase(db: str, data: str, fit_id: str, phase: str) -> str:
 
 
 def _first(body_request: dict, req: dict, person):
+    from tryon.fabric import load_fabric
     from tryon.sizing.quick import first_answer
 
-    return first_answer(person, body_request["gender"], req["garment"], req.get("sizes"))
+    return first_answer(person, body_request["gender"], req["garment"], req.get("sizes"), fabric=load_fabric(req["fabric"]))
 
 
 def _answer(store: Store, data: Path, fit_id: str, body_request: dict, req: dict, person) -> str:

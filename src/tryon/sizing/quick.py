@@ -145,11 +145,11 @@ def refined_for_judging(request: DrapeRequest, person: BodyFit, model) -> DrapeR
                          refine_until=lambda garment, body: VerdictSettled(request.size, garment, body))
 
 
-def predict_size(model, body: BodyPose, gender: str, size: str) -> PredictedSize:
+def predict_size(model, body: BodyPose, gender: str, size: str, fabric=None) -> PredictedSize:
     from tryon.sim.geometry import nearest_surface_points
 
     garment = model.reference_garment(gender, size)
-    x = model.predict_vertices(body.vertices, gender, size)
+    x = model.predict_vertices(body.vertices, gender, size, fabric)
     strain = garment_strain(garment, x)
     d, _, _ = nearest_surface_points(x, body.vertices, body.faces)
     judged = dict(judge(size, garment, d, strain, None, strain_reliable=False), judged_on="prediction")
@@ -157,16 +157,16 @@ def predict_size(model, body: BodyPose, gender: str, size: str) -> PredictedSize
 
 
 def first_answer(person: BodyFit, gender: str, garment: str, sizes: list[str] | None = None,
-                 model=None) -> FirstAnswer:
-    """Every size (default: every size the model knows) predicted on `person` and judged;
-    the recommendation among them."""
+                 model=None, fabric=None) -> FirstAnswer:
+    """Every size (default: every size the model knows) predicted on `person` in `fabric`
+    (a Fabric) and judged; the recommendation among them."""
     t0 = time.perf_counter()
     model = model or shipped_model(garment)
     body = a_posed(person)
     t1 = time.perf_counter()
-    predicted = [predict_size(model, body, gender, s) for s in ordered_sizes(sizes or model.sizes)]
+    predicted = [predict_size(model, body, gender, s, fabric) for s in ordered_sizes(sizes or model.sizes)]
     best, reasons = recommend([p.judged for p in predicted])
-    notes = model.coverage_notes(gender, person.achieved["height_cm"], person.achieved["bmi"])
+    notes = model.coverage_notes(gender, person.achieved["height_cm"], person.achieved["bmi"], fabric)
     return FirstAnswer(best, reasons, predicted, body, notes,
                        {"pose_s": t1 - t0, "predict_s": time.perf_counter() - t1})
 
