@@ -83,3 +83,23 @@ def test_the_judge_reports_every_fabric_on_its_own(skirts, trained):
     assert all(r["garment"] == "skirt" for r in each + [whole])
     mean = sum(r["mean_error_cm"] * r["samples"] for r in each) / whole["samples"]
     assert mean == pytest.approx(whole["mean_error_cm"], rel=1e-6)
+
+
+def test_a_model_of_one_drawn_fabric_names_that_fabric():
+    from tryon.fabric.blend import fabric_features
+    from tryon.learn.train import fabric_normalisation
+
+    denim = fabric_features(load_fabric("11oz-black-denim"))
+    spec = {"fabric": "gray-interlock", "fabrics": ["11oz-black-denim"]}
+    assert fabric_normalisation(np.repeat(denim[None], 3, 0), ["11oz-black-denim"] * 3, spec) == {"names": ["11oz-black-denim"]}
+    both = np.stack([denim, fabric_features(load_fabric("gray-interlock"))])
+    many = fabric_normalisation(both, ["11oz-black-denim", "gray-interlock"], dict(spec, fabrics=list(FABRICS)))
+    assert np.allclose((both - many["mean"]) / many["scale"], [[1, 1, 1, 1], [-1, -1, -1, -1]], atol=1e-5)
+
+
+def test_the_print_bench_refuses_data_of_drawn_fabrics(skirts, tmp_path):
+    from tryon.bench.prints import run_print_bench
+    from tryon.errors import TryonError
+
+    with pytest.raises(TryonError, match="draws its fabric per drape"):
+        run_print_bench(tmp_path / "print.json", skirts)

@@ -7,7 +7,8 @@ skinning), `nearest` (nearest training body of the same gender and size) and
 `tailornet-pca` (MLP to PCA coefficients, L2), the last two fitted on the dataset's
 training split here (left out on data without one, such as the held-out drapes that ship
 with the model). Keys per record: method, split, garment, fabric (`all`, or on data whose
-fabric is drawn per drape also one record per fabric for the learned methods), samples, mean_error_cm,
+fabric is drawn per drape also one record per fabric for the learned methods, without
+error_vs_skinning), samples, mean_error_cm,
 p95_error_cm, interpenetration_pct, edge_error_pct, potential_ratio, inference_ms,
 refine_s, simulation_s, and error_vs_skinning (mean error over the skinning baseline's).
 `outside_dataset` holds `tryon drape --method learned --refine` against `tryon drape` on
@@ -90,17 +91,20 @@ def run_learned_bench(json_path: str | Path, data_dir: str | Path, model_path: s
         methods = {"learned": timed(lambda s: predict_set(model, s), sub, one_learned(sub)),
                    "skinning": timed(lambda s: s.prior, sub)}
         methods.update({name: timed(b.predict, sub) for name, b in baselines.items()})
-        rows = {name: judge.record(name, split, pred, ms) for name, (pred, ms) in methods.items()}
         refined = _refined(model, data, judge, methods["learned"], t0)
-        rows["learned+refine"] = judge.record("learned+refine", split, refined[0], refined[1], float(refined[2].mean()))
+        measured = {name: judge.measures(pred) for name, (pred, _) in methods.items()}
+        measured["learned+refine"] = judge.measures(refined[0])
+        rows = {name: judge.record(name, split, pred, ms, measures=measured[name]) for name, (pred, ms) in methods.items()}
+        rows["learned+refine"] = judge.record("learned+refine", split, refined[0], refined[1], float(refined[2].mean()),
+                                              measures=measured["learned+refine"])
         if split == "test":
             picture = comparison_picture(model, judge, methods["learned"][0], refined[0])
         for r in rows.values():
             r["error_vs_skinning"] = r["mean_error_cm"] / rows["skinning"]["mean_error_cm"]
         records.extend(rows.values())
         if len(set(judge.fabric_labels)) > 1:  # drawn fabrics: the model's error in each
-            records.extend(judge.records_by_fabric("learned", split, *methods["learned"]))
-            records.extend(judge.records_by_fabric("learned+refine", split, *refined))
+            records.extend(judge.records_by_fabric("learned", split, *methods["learned"], measures=measured["learned"]))
+            records.extend(judge.records_by_fabric("learned+refine", split, *refined, measures=measured["learned+refine"]))
     from tryon.bench.learned_vs_drape import outside_dataset_records
 
     if not quick:

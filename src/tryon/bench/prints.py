@@ -23,6 +23,7 @@ import torch
 from PIL import Image
 
 from tryon.bench.records import write_records
+from tryon.errors import TryonError
 
 
 def logo_image(rows: int = 200, cols: int = 240) -> np.ndarray:
@@ -102,6 +103,9 @@ def run_print_bench(json_path: str | Path, data_dir: str | Path, model_path: str
     png = json_path.parent / "print.png"
     Image.fromarray(logo_image()).save(png)
     data = load_drape_dataset(data_dir)
+    if data.manifest.spec.get("fabrics"):
+        raise TryonError(f"{data_dir} draws its fabric per drape; tryon bench print compares drapes of one fabric: "
+                         "give a dataset made without --fabrics")
     model = DrapeModel.load(model_path) if model_path else load_shipped(data.manifest.spec["garment"])
     model.check_dataset(data.manifest.spec)
     ts = training_set(data, model.priors, model.region, progress=False)

@@ -99,6 +99,14 @@ def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
         if diff or d.faces.shape != first.faces.shape or not np.array_equal(d.faces, first.faces):
             raise DatasetError(f"{f} cannot be trained on with {folders[0]}: "
                                f"{', '.join(diff) if diff else 'the garment topology'} differ")
+    if any("fabric_features" in d.arrays for d in sets):  # a set of one fabric: its features on every drape
+        from tryon.fabric import load_fabric
+        from tryon.fabric.blend import fabric_features
+
+        for d in sets:
+            if "fabric_features" not in d.arrays:
+                one = fabric_features(load_fabric(d.manifest.spec["fabric"]))
+                d.arrays["fabric_features"] = np.repeat(one[None], len(d.arrays["unit"]), 0)
     keys = set(first.arrays)
     for f, d in zip(folders, sets):
         missing = REQUIRED_KEYS - set(d.arrays)

@@ -77,6 +77,16 @@ def dataset_key(data: DrapeDataset) -> str:
     return h.hexdigest()[:12]
 
 
+def fabric_label(spec: dict, arrays: dict, row: int) -> str:
+    """The fabric a drape wears, by name: the dataset's one fabric, the measured fabric drawn,
+    or `blended` for a blend of two."""
+    names = spec.get("fabrics")
+    if not names or "fabric_a" not in arrays:
+        return spec["fabric"]
+    a, b = int(arrays["fabric_a"][row]), int(arrays["fabric_b"][row])
+    return names[a] if a == b else "blended"
+
+
 def drape_fabrics(data: DrapeDataset, rows: np.ndarray) -> np.ndarray:
     """[S,F] the features of each drape's fabric: recorded per drape when the dataset draws
     its fabrics (`--fabrics`), else those of the dataset's one fabric."""

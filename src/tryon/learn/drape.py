@@ -47,8 +47,8 @@ def learned_drape(request: DrapeRequest, model_path: str | None = None, refine: 
     check_size_fits(request, person)  # a size far too small is refused, as by the simulated path
     target = posed_body(person.shape, "a", drafting_measurements(person.shape)["crotch_height"])
     timings["fit_body_s"] = time.perf_counter() - t1
-    t2 = time.perf_counter()
     fabric = load_fabric(request.fabric)
+    t2 = time.perf_counter()
     x = model.predict_vertices(target.vertices, request.body.gender, size, fabric)
     timings["inference_ms"] = 1000.0 * (time.perf_counter() - t2)
     refined: dict = {}

@@ -16,7 +16,7 @@ import numpy as np
 
 from tryon.dataset.drapes import shape_params
 from tryon.dataset.loading import DrapeDataset
-from tryon.learn.data import GENDERS, TrainingSet
+from tryon.learn.data import GENDERS, TrainingSet, fabric_label
 from tryon.learn.features import a_posed_body
 from tryon.learn.model import DrapeModel
 
@@ -67,14 +67,17 @@ class Judge:
         return {"err": err, "edge": 100.0 * np.abs(lp / np.maximum(lt, 1e-6) - 1.0), "pen": np.asarray(pen),
                 "pot": np.asarray(pot)}
 
-    def record(self, method: str, split: str, pred: np.ndarray, inference_ms: float, refine_s: float = 0.0) -> dict:
-        return self._summary(method, split, self.measures(pred), np.ones(len(pred), bool), inference_ms, refine_s, "all")
+    def record(self, method: str, split: str, pred: np.ndarray, inference_ms: float, refine_s: float = 0.0,
+               measures: dict | None = None) -> dict:
+        """The record of every drape (`measures`: those of `pred`, when already taken)."""
+        m = measures if measures is not None else self.measures(pred)
+        return self._summary(method, split, m, np.ones(len(pred), bool), inference_ms, refine_s, "all")
 
     def records_by_fabric(self, method: str, split: str, pred: np.ndarray, inference_ms: float,
-                          refine_s: np.ndarray | None = None) -> list[dict]:
+                          refine_s: np.ndarray | None = None, measures: dict | None = None) -> list[dict]:
         """One record per fabric of the drapes (a blend of two measured fabrics: `blended`);
         `refine_s` per drape."""
-        m = self.measures(pred)
+        m = measures if measures is not None else self.measures(pred)
         labels = np.asarray(self.fabric_labels)
         out = []
         for label in sorted(set(self.fabric_labels)):
@@ -90,16 +93,6 @@ class Judge:
                 "interpenetration_pct": float(m["pen"][keep].mean()), "edge_error_pct": float(m["edge"][keep].mean()),
                 "potential_ratio": float(np.median(m["pot"][keep])), "inference_ms": inference_ms,
                 "refine_s": refine_s, "simulation_s": float(self.sim_s[keep].mean())}
-
-
-def fabric_label(spec: dict, arrays: dict, row: int) -> str:
-    """The fabric a drape wears, by name: the dataset's one fabric, the measured fabric drawn,
-    or `blended` for a blend of two."""
-    names = spec.get("fabrics")
-    if not names or "fabric_a" not in arrays:
-        return spec["fabric"]
-    a, b = int(arrays["fabric_a"][row]), int(arrays["fabric_b"][row])
-    return names[a] if a == b else "blended"
 
 
 def timed(predict: Callable[[TrainingSet], np.ndarray], ts: TrainingSet, one: Callable[[int], object] | None = None,

@@ -77,7 +77,10 @@ class DrapeModel:
 
     def trained_fabric(self) -> str | None:
         """The one fabric a model of one fabric was trained in (None for a model of many)."""
-        return None if self.config.fabric else self.card.get("manifest", {}).get("spec", {}).get("fabric")
+        if self.config.fabric:
+            return None
+        names = self.fabrics.get("names") or [self.card.get("manifest", {}).get("spec", {}).get("fabric")]
+        return names[0]
 
     def size_onehot(self, size: str) -> np.ndarray:
         if size not in self.sizes:
@@ -105,18 +108,15 @@ class DrapeModel:
         (empty when inside)."""
         spec = self.card.get("manifest", {}).get("spec", {})
         r = spec.get("ranges")
-        if not r:
-            return []
-        notes = []
-        if gender not in r["genders"]:
+        notes = self._fabric_notes(fabric)
+        if r and gender not in r["genders"]:
             notes.append(f"the model was trained on {', '.join(r['genders'])} bodies only")
-        lo, hi = r["bmi"]
+        lo, hi = r["bmi"] if r else (-np.inf, np.inf)
         if not lo <= bmi <= hi:
             notes.append(f"BMI {bmi:.1f} is outside the model's training range {lo:g}-{hi:g}")
-        h = r["height_cm"].get(gender)
+        h = r["height_cm"].get(gender) if r else None
         if h and not h[0] <= height_cm <= h[1]:
             notes.append(f"stature {height_cm:.0f} cm is outside the model's training range {h[0]:g}-{h[1]:g} cm")
-        notes += self._fabric_notes(fabric)
         return [n + ": refine (--refine) or simulate (--method simulate) to be sure" for n in notes]
 
     def _fabric_notes(self, fabric) -> list[str]:
@@ -197,6 +197,8 @@ class DrapeModel:
         m = cls(meta["garment"], meta["sizes"], NetConfig(**meta["config"]), h, priors, a["region"].astype(np.int64),
                 a["mean_region"].astype(np.float64), faces, garments, meta["card"],
                 {k: v if k == "names" else np.asarray(v, np.float64) for k, v in meta.get("fabrics", {}).items()})
+        if m.config.fabric and "mean" not in m.fabrics:
+            raise ModelError(f"{path} reads fabrics but does not say how it normalises them; retrain it")
         net = m.build_net()
         state = {k[2:]: torch.from_numpy(np.asarray(v, np.float32) if v.dtype == np.float16 else v)
                  for k, v in a.items() if k.startswith("w_")}

@@ -88,8 +88,8 @@ def _body(manifest: Manifest, body_index: int):
 
 def refined_unit(manifest: Manifest, model_path: str, unit: int) -> dict[str, np.ndarray]:
     """One (body, size) unit: the model's prediction on the sampled body, refined."""
+    from tryon.dataset.drapes import unit_fabric
     from tryon.drape.fit_metrics import face_strain, penetration
-    from tryon.fabric import load_fabric
     from tryon.learn.features import a_posed_body
     from tryon.learn.model import DrapeModel
     from tryon.learn.refine import refine_drape
@@ -105,7 +105,9 @@ def refined_unit(manifest: Manifest, model_path: str, unit: int) -> dict[str, np
     out = sample_header(manifest, body, size, unit)
     target = a_posed_body(body.params)
     garment = model.reference_garment(body.gender, size)
-    fabric = load_fabric(spec["fabric"])
+    fabric, fabric_record = unit_fabric(manifest, unit)  # drawn per unit as for the simulated drapes
+    if spec.get("fabrics"):
+        out.update(fabric_record)
     pred = model.predict_vertices(target.vertices, body.gender, size, fabric)
     try:
         x, stats = refine_drape(pred, garment, target, fabric)

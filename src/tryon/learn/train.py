@@ -18,7 +18,7 @@ from tqdm import tqdm
 from tryon.dataset.loading import load_drape_datasets
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
-from tryon.learn.data import TrainingSet, dataset_key, model_parts, training_set
+from tryon.learn.data import TrainingSet, dataset_key, fabric_label, model_parts, training_set
 from tryon.learn.losses import DrapeLoss, LossWeights
 from tryon.learn.model import DrapeModel, timestamp
 from tryon.learn.network import NetConfig
@@ -93,8 +93,9 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
     if len(val.rows) == 0:  # a small dataset drew no validation body: select on the training error
         val, selected_on = train, "train"
     config.net.sizes = len(data.manifest.spec["sizes"])
-    fabrics = fabric_normalisation(train.fabric, data.manifest.spec)
-    config.net.fabric = train.fabric.shape[1] if fabrics else 0
+    fabrics = fabric_normalisation(train.fabric, [fabric_label(data.manifest.spec, data.arrays, int(r)) for r in train.rows],
+                                   data.manifest.spec)
+    config.net.fabric = train.fabric.shape[1] if "mean" in fabrics else 0
     model = DrapeModel(data.manifest.spec["garment"], list(data.manifest.spec["sizes"]), config.net, hierarchy, priors,
                        region, train.body.astype(np.float64).mean(0), data.faces, dict(data.references), fabrics=fabrics)
     torch.manual_seed(config.seed)  # here: preparing the samples may draw from torch's generator
@@ -164,14 +165,15 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
     return best
 
 
-def fabric_normalisation(features: np.ndarray, spec: dict) -> dict:
+def fabric_normalisation(features: np.ndarray, labels: list[str], spec: dict) -> dict:
     """How a model of many fabrics reads them: the training drapes' features centred and
     scaled by their spread, their range (beyond it the model extrapolates) and the measured
-    fabrics drawn from; empty when every training drape wears one fabric."""
+    fabrics drawn from. When every training drape wears one fabric, only its name (`labels`:
+    each drape's `fabric_label`): a model of that one fabric."""
     f = features.astype(np.float64)
-    spread = f.std(0)
-    if not len(f) or spread.max() < 1e-6:
-        return {}
+    spread = f.std(0) if len(f) else np.zeros(1)
+    if spread.max() < 1e-6:
+        return {"names": sorted(set(labels))[:1] or [spec["fabric"]]}
     return {"mean": f.mean(0), "scale": np.where(spread > 1e-6, spread, 1.0), "low": f.min(0), "high": f.max(0),
             "names": list(spec.get("fabrics") or [spec.get("fabric")])}
 

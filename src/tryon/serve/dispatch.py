@@ -72,11 +72,12 @@ def _answer_once() -> None:
     from tryon.body.amortised import quick_fit
     from tryon.body.fit import Measurements
     from tryon.io.threads import one_torch_thread
+    from tryon.fabric import load_fabric
     from tryon.sizing.quick import first_answer
 
     with one_torch_thread():
         person = quick_fit(Measurements(height_cm=170.0, weight_kg=65.0, gender="female"))
-        first_answer(person, "female", "tshirt")
+        first_answer(person, "female", "tshirt", fabric=load_fabric("gray-interlock"))
 
 
 def _started() -> int:
