@@ -54,6 +54,12 @@ def test_the_drapes_record_each_fabric_and_the_model_reads_it(skirts, trained):
     assert np.abs(soft - stiff).max() > 1e-5  # the fabric changes the prediction
     with pytest.raises(ModelError, match="name the fabric"):
         model.predict(shape_params(data.arrays["shape_params"][r]), "female", size)
+    # the card gives the error per fabric on every split
+    for split, m in model.card["metrics"].items():
+        per = m["by_fabric"]
+        assert sum(v["samples"] for v in per.values()) == m["samples"]
+        assert sum(v["mean_error_cm"] * v["samples"] for v in per.values()) / m["samples"] == pytest.approx(m["mean_error_cm"])
+    assert "per fabric" in (out / "MODEL_CARD.md").read_text()
     # the file keeps how it reads fabrics
     loaded = DrapeModel.load(out / "model.npz")
     assert loaded.config.fabric == model.config.fabric and loaded.fabrics["names"] == list(FABRICS)

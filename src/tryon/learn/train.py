@@ -185,6 +185,7 @@ def mean_error_cm(pred: np.ndarray, truth: np.ndarray) -> float:
 def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config: TrainConfig, state: dict,
                wall_s: float) -> dict:
     pred = predict_set(model, ts)
+    labels = np.asarray([fabric_label(data.manifest.spec, data.arrays, int(r)) for r in ts.rows])
     metrics = {}
     for split in sorted(set(ts.split.tolist())):
         k = ts.split == split
@@ -192,6 +193,10 @@ def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config:
         prior = 100.0 * np.linalg.norm(ts.prior[k] - ts.truth[k], axis=-1)
         metrics[split] = {"samples": int(k.sum()), "mean_error_cm": float(err.mean()), "p95_error_cm": float(np.percentile(err, 95)),
                           "skinning_mean_error_cm": float(prior.mean())}
+        if model.config.fabric:  # each fabric's share of the split
+            metrics[split]["by_fabric"] = {f: {"samples": int((labels[k] == f).sum()),
+                                               "mean_error_cm": float(err[labels[k] == f].mean())}
+                                           for f in sorted(set(labels[k].tolist()))}
     return {"garment": model.garment, "sizes": model.sizes, "trained": timestamp(), "data": str(data_dir),
             "manifest": json.loads(data.manifest.to_json()), "samples": {s: int((ts.split == s).sum()) for s in sorted(set(ts.split.tolist()))},
             "split": data.manifest.split, "train_config": config.to_dict(), "best_epoch": model.card.get("epoch"),
@@ -239,6 +244,13 @@ def card_markdown(card: dict) -> str:
              "| split | samples | mean cm | p95 cm | skinning baseline mean cm |", "|---|---:|---:|---:|---:|"]
     for split, m in sorted(card["metrics"].items()):
         lines.append(f"| {split} | {m['samples']} | {m['mean_error_cm']:.2f} | {m['p95_error_cm']:.2f} | {m['skinning_mean_error_cm']:.2f} |")
+    by_fabric = {split: m["by_fabric"] for split, m in sorted(card["metrics"].items()) if "by_fabric" in m}
+    if by_fabric:
+        lines += ["", "Mean vertex error (cm) per fabric (drapes in brackets):", "",
+                  "| fabric | " + " | ".join(by_fabric) + " |", "|---|" + "---:|" * len(by_fabric)]
+        for f in sorted({f for per in by_fabric.values() for f in per}):
+            cells = [f"{per[f]['mean_error_cm']:.2f} ({per[f]['samples']})" if f in per else "" for per in by_fabric.values()]
+            lines.append(f"| {f} | " + " | ".join(cells) + " |")
     if card.get("metrics_note"):
         lines += ["", card["metrics_note"]]
     t = card["train_config"]
