@@ -19,6 +19,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from tryon.bench.records import write_records
+from tryon.sizing.judge import ease_of, target_of
 from tryon.body.fit import Measurements
 
 # (gender, height cm, weight kg): BMI about 19, 25, 30 and 35-40 for each gender
@@ -29,7 +30,8 @@ QUICK_BODIES = BODIES[1:2]
 
 def _summary(rec: dict) -> dict:
     return {"recommended": rec["recommended"], "wall_s": rec["wall_s"], "fit_body_s": rec["fit_body_s"],
-            "sizes": {j["size"]: {"fits": j["fits"], "torso_ease_cm": j["torso_ease_cm"],
+            "sizes": {j["size"]: {"fits": j["fits"], "torso_ease_cm": j["torso_ease_cm"], "ease_cm": ease_of(j),
+                                  "target_ease_cm": target_of(j), "decided_by": j.get("decided_by", "torso"),
                                   "overstrained_area_pct": j["overstrained_area_pct"],
                                   "max_strain_pct": j["max_strain_pct"], "judged_on": j.get("judged_on", "")}
                       for j in rec["sizes"]}}
@@ -65,6 +67,7 @@ def _apply_current_rule(rec: dict) -> None:
     for method in ("learned", "simulated"):
         sizes = rec[method]["sizes"]
         judged = [{"size": k, "fits": sizes[k]["fits"], "torso_ease_cm": sizes[k]["torso_ease_cm"],
+                   **{key: sizes[k][key] for key in ("ease_cm", "target_ease_cm", "decided_by") if key in sizes[k]},
                    "overstrained_area_pct": sizes[k]["overstrained_area_pct"], "why_not": [],
                    "judged_on": sizes[k].get("judged_on", ""), "not_refined": ""} for k in rec["sizes"]]
         rec[method]["recommended"] = rec[f"recommended_{method}"] = recommend(judged)[0]

@@ -23,6 +23,7 @@ import numpy as np
 from tryon.serve.bodies import load_body
 from tryon.serve.scene import SceneArrays, write_scene
 from tryon.serve.store import Store
+from tryon.sizing.judge import ease_of
 
 # sizes simulated when a garment has no learned model and the request names none
 SIMULATED_SIZES = ("S", "M", "L", "XL")
@@ -196,7 +197,8 @@ def _size_entry(judged: dict) -> dict:
     regions = judged.get("regions", {})
     pressures = [r["mean_pressure_kpa"] for r in regions.values() if "mean_pressure_kpa" in r]
     return {"size": judged["size"], "fits": bool(judged["fits"]), "why_not": judged["why_not"],
-            "ease_cm": _number(judged["torso_ease_cm"]), "overstretched_area_pct": _number(judged["overstrained_area_pct"]),
+            "ease_cm": _number(ease_of(judged)), "ease_at": judged.get("decided_by", "torso"),
+            "overstretched_area_pct": _number(judged["overstrained_area_pct"]),
             "max_strain_pct": _number(judged["max_strain_pct"]),
             "pressure_kpa": _number(max(pressures)) if pressures else None,
             "judged_on": judged.get("judged_on", "simulated drape"), "not_refined": judged.get("not_refined"),

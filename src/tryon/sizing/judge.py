@@ -4,8 +4,13 @@ Each garment region (its pattern panels) is scored by ease (mean distance from t
 cm), strain (area-weighted mean, and the share of area stretched beyond `OVERSTRAIN`) and
 contact pressure. A size fits when less than `MAX_OVERSTRAINED_PCT` of its area is
 overstretched and no region clings tighter than `MIN_EASE_CM`; among the sizes that fit,
-the one whose torso ease is nearest `TARGET_EASE_CM` (a regular fit) is recommended. If
-none fits, the largest is named, with the reason."""
+the one whose deciding ease is nearest a regular fit's is recommended. If none fits, the
+largest is named, with the reason.
+
+The deciding ease is where the garment's sizes are chosen (`DEFINING_GIRTH`): the torso
+(front and back panels) of tops and dresses, against `TARGET_EASE_CM`; the band round the
+hip line of skirts and trousers, against `TARGET_HIP_EASE_CM`, with the waistband's ease
+reported beside it (`fit_bands`)."""
 
 from __future__ import annotations
 
@@ -22,6 +27,50 @@ MIN_EASE_CM = 0.5
 # 1.6 cm off the skin; the fit a size has on the body it was drafted for.
 TARGET_EASE_CM = 100.0 * Ease().chest / (2.0 * math.pi)
 TORSO = ("front", "back")
+# Skirts and trousers: the hip band's ease each size has on the body it was drafted for
+# (median over the twelve trouser and six skirt sizes on their fit models, `data/drapes-v3`
+# references: 1.33 and 0.91 cm). The skirt's is the draft's 6 cm of hip ease spread round
+# the body (0.95 cm); trousers add the seat the crotch extension takes.
+TARGET_HIP_EASE_CM = {"skirt": 0.9, "trousers": 1.35}
+WAIST_BAND_M = 0.04  # the top of each panel (its waistband), in the panel's material
+HIP_BAND_M = 0.05    # the band round the hip line, in the panel's material
+LOWER_BODY = ("skirt", "trousers")
+
+
+def fit_bands(garment) -> dict[str, np.ndarray] | None:
+    """Vertex ids of a skirt's or trousers' waistband and of the band round its hip line
+    (None for other garments, or a pattern that does not record its fit model's heights).
+    Found in each panel's material coordinates: u runs up the grain from the hem, the top
+    is the waist, and the hip line lies the fit model's waist-to-hip depth below it."""
+    meta = garment.pattern.meta if garment.pattern is not None else {}
+    m = meta.get("body_measurements_cm") or {}
+    if meta.get("garment") not in LOWER_BODY or "waist_height" not in m or "hip_height" not in m:
+        return None
+    depth = (m["waist_height"] - m["hip_height"]) / 100.0
+    waist, hip = [], []
+    for k in range(len(garment.pattern.panels)):
+        v = np.unique(garment.faces[garment.face_panel == k])
+        u = garment.uv[v, 0]
+        top = u.max()
+        waist.append(v[u >= top - WAIST_BAND_M])
+        hip.append(v[np.abs(u - (top - depth)) <= HIP_BAND_M / 2])
+    return {"waist": np.concatenate(waist), "hip": np.concatenate(hip)}
+
+
+def deciding_ease(garment, skin_distance: np.ndarray, regions: dict) -> dict:
+    """Where the size is judged (`decided_by`), its ease (`ease_cm`) and a regular fit's
+    (`target_ease_cm`); the torso ease (NaN without front and back panels); for skirts and
+    trousers the waistband's and the hip band's ease."""
+    torso = [regions[r] for r in TORSO if r in regions]
+    torso_ease = float(np.mean([r["ease_cm"] for r in torso])) if torso else float("nan")
+    bands = fit_bands(garment)
+    if bands is None or not len(bands["hip"]):
+        return {"decided_by": "torso", "ease_cm": torso_ease, "target_ease_cm": TARGET_EASE_CM,
+                "torso_ease_cm": torso_ease}
+    band_ease = {k: float(100 * skin_distance[v].mean()) if len(v) else float("nan") for k, v in bands.items()}
+    target = TARGET_HIP_EASE_CM[garment.pattern.meta["garment"]]
+    return {"decided_by": "hip", "ease_cm": band_ease["hip"], "target_ease_cm": target,
+            "torso_ease_cm": torso_ease, "waist_ease_cm": band_ease["waist"], "hip_ease_cm": band_ease["hip"]}
 
 
 def rest_face_areas(garment) -> np.ndarray:
@@ -57,8 +106,6 @@ def judge(size: str, garment, skin_distance: np.ndarray, strain: np.ndarray, pre
     in its vertices read as several % of strain, so its overstretched area says nothing
     until refinement."""
     regions = region_scores(garment, skin_distance, strain, pressure)
-    torso = [regions[r] for r in TORSO if r in regions]
-    ease = float(np.mean([r["ease_cm"] for r in torso])) if torso else float("nan")
     area = rest_face_areas(garment)
     over = 100.0 * float(area[strain > OVERSTRAIN].sum() / area.sum())
     tight = [name for name, r in regions.items() if r["ease_cm"] < MIN_EASE_CM]
@@ -67,9 +114,9 @@ def judge(size: str, garment, skin_distance: np.ndarray, strain: np.ndarray, pre
         why.append(f"{over:.0f} % of its area is stretched beyond {100 * OVERSTRAIN:.0f} %")
     if tight:
         why.append(f"it clings to the skin at the {', '.join(tight)} (ease under {MIN_EASE_CM} cm)")
-    return {"size": size, "fits": not why, "why_not": why, "torso_ease_cm": ease, "overstrained_area_pct": over,
-            "max_strain_pct": 100 * float(strain.max()), "penetration_pct": 100.0 * float((skin_distance < 0).mean()),
-            "regions": regions}
+    return {"size": size, "fits": not why, "why_not": why, **deciding_ease(garment, skin_distance, regions),
+            "overstrained_area_pct": over, "max_strain_pct": 100 * float(strain.max()),
+            "penetration_pct": 100.0 * float((skin_distance < 0).mean()), "regions": regions}
 
 
 def judge_size(size: str, result, strain_reliable: bool = True) -> dict:
@@ -85,8 +132,22 @@ def undrapeable(size: str, reason: str) -> dict:
     """The judgement of a size the simulator could not drape on the body."""
     nan = float("nan")
     return {"size": size, "fits": False, "why_not": [f"the simulator could not drape it ({reason.split(';')[0]})"],
+            "decided_by": "torso", "ease_cm": nan, "target_ease_cm": TARGET_EASE_CM,
             "torso_ease_cm": nan, "overstrained_area_pct": nan, "max_strain_pct": nan, "penetration_pct": nan,
             "regions": {}, "timings": {}}
+
+
+def ease_of(j: dict) -> float:
+    """A judgement's deciding ease (cm; the torso's in judgements kept from before)."""
+    return j.get("ease_cm", j.get("torso_ease_cm", float("nan")))
+
+
+def target_of(j: dict) -> float:
+    return j.get("target_ease_cm", TARGET_EASE_CM)
+
+
+def ease_words(j: dict) -> str:
+    return f"{j.get('decided_by', 'torso')} ease {ease_of(j):.1f} cm"
 
 
 def recommend(judged: list[dict]) -> tuple[str, list[str]]:
@@ -97,21 +158,20 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     if not fitting:
         last = settled[-1]
         return last["size"], [f"no size fits: even {last['size']} does not, since " + "; ".join(last["why_not"])]
-    best = min(fitting, key=lambda j: abs(j["torso_ease_cm"] - TARGET_EASE_CM))
+    best = min(fitting, key=lambda j: abs(ease_of(j) - target_of(j)))
     stretch = ("strain judged after refinement" if best.get("judged_on") == "prediction"
                else f"{best['overstrained_area_pct']:.0f} % of the area overstretched")
-    reasons = [f"{best['size']}: torso ease {best['torso_ease_cm']:.1f} cm (a regular fit is about {TARGET_EASE_CM:.1f} cm), "
-               f"{stretch}"]
+    waist = f", waistband ease {best['waist_ease_cm']:.1f} cm" if "waist_ease_cm" in best else ""
+    reasons = [f"{best['size']}: {ease_words(best)} (a regular fit is about {target_of(best):.1f} cm){waist}, {stretch}"]
     for j in judged:
         if j is best:
             continue
         if j.get("not_refined"):  # predicted only, beside where refinement stopped
             verdict = "does not fit (" + "; ".join(j["why_not"]) + ")" if j["why_not"] else "fits"
-            reasons.append(f"{j['size']} was not refined ({j['not_refined']}); its prediction {verdict}, "
-                           f"torso ease {j['torso_ease_cm']:.1f} cm")
+            reasons.append(f"{j['size']} was not refined ({j['not_refined']}); its prediction {verdict}, {ease_words(j)}")
         elif j["fits"]:
-            reasons.append(f"{j['size']} also fits, {'looser' if j['torso_ease_cm'] > best['torso_ease_cm'] else 'closer'}: "
-                           f"torso ease {j['torso_ease_cm']:.1f} cm")
+            reasons.append(f"{j['size']} also fits, {'looser' if ease_of(j) > ease_of(best) else 'closer'}: "
+                           f"{ease_words(j)}")
         else:
             reasons.append(f"{j['size']} does not fit: " + "; ".join(j["why_not"]))
     return best["size"], reasons

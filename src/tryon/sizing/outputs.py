@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from tryon.drape.pipeline import DrapeResult
+from tryon.sizing.judge import ease_words
 
 
 def sizes_picture(results: list[DrapeResult | str], judged: list[dict], recommended: str) -> np.ndarray:
@@ -29,7 +30,7 @@ def sizes_picture(results: list[DrapeResult | str], judged: list[dict], recommen
         mark = " (recommended)" if j["size"] == recommended else ("" if j["fits"] else " (does not fit)")
         if "not_refined" in j:
             mark += " (predicted)"
-        ImageDraw.Draw(pil).text((12, 12), f"size {j['size']}{mark}: torso ease {j['torso_ease_cm']:.1f} cm", fill=(0, 0, 0), font=font)
+        ImageDraw.Draw(pil).text((12, 12), f"size {j['size']}{mark}: {ease_words(j)}", fill=(0, 0, 0), font=font)
         tiles.append(np.asarray(pil))
     h = max(t.shape[0] for t in tiles)
     tiles = [np.pad(t, ((0, h - t.shape[0]), (0, 0), (0, 0)), constant_values=255) for t in tiles]

@@ -26,7 +26,7 @@ from tryon.body.measure import drafting_measurements
 from tryon.body.pose import BodyPose, posed_body
 from tryon.drape.pipeline import DrapeRequest, DrapeResult
 from tryon.garment.sizes import SIZES
-from tryon.sizing.judge import MAX_OVERSTRAINED_PCT, MIN_EASE_CM, TARGET_EASE_CM, judge, judge_size, recommend
+from tryon.sizing.judge import MAX_OVERSTRAINED_PCT, MIN_EASE_CM, ease_of, judge, judge_size, recommend, target_of
 
 
 @dataclass
@@ -120,7 +120,7 @@ class VerdictSettled:
         return True
 
     def _close(self, before: dict, now: dict) -> bool:
-        a, b = now["torso_ease_cm"], before["torso_ease_cm"]  # NaN for a garment with no torso panels
+        a, b = ease_of(now), ease_of(before)  # NaN for a garment with no torso panels or hip band
         ease_close = (np.isnan(a) and np.isnan(b)) or abs(a - b) < self.ease_cm
         return ease_close and abs(now["overstrained_area_pct"] - before["overstrained_area_pct"]) < self.area_pct
 
@@ -177,8 +177,8 @@ def _refine_next(judged: list[dict], k: int) -> bool:
         return False
     if not judged[k]["fits"]:
         return not any(j["fits"] for j in judged[:k] if j.get("judged_on") == "refined drape")
-    ease, larger = judged[k]["torso_ease_cm"], judged[k + 1]["torso_ease_cm"]
-    return ease < TARGET_EASE_CM and abs(larger - TARGET_EASE_CM) < abs(ease - TARGET_EASE_CM)
+    ease, larger, target = ease_of(judged[k]), ease_of(judged[k + 1]), target_of(judged[k])
+    return ease < target and abs(larger - target) < abs(ease - target)
 
 
 def refine_decisive(predicted: list[dict], recommended: str, person: BodyFit, request: DrapeRequest, model=None,

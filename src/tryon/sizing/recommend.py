@@ -17,7 +17,7 @@ import time
 from tryon.body.fit import Measurements, fit_body
 from tryon.drape.pipeline import DrapeRequest, DrapeResult
 from tryon.errors import TryonError
-from tryon.sizing.judge import TARGET_EASE_CM, judge_size, recommend, undrapeable
+from tryon.sizing.judge import ease_of, judge_size, recommend, target_of, undrapeable
 
 
 def _drape_or_reason(req: DrapeRequest, person=None) -> DrapeResult | str:
@@ -81,7 +81,7 @@ def learned_sizes(requests: list[DrapeRequest], person, model, refine: bool = Tr
         size = judged[k]["size"]
         if not judged[k]["fits"]:
             why = f"smaller than {size}, which does not fit"
-        elif judged[k]["torso_ease_cm"] <= TARGET_EASE_CM:
+        elif ease_of(judged[k]) <= target_of(judged[k]):
             why = f"smaller than {size}, which already fits closer than a regular fit"
         else:
             continue
