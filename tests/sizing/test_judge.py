@@ -66,3 +66,11 @@ def test_tops_are_judged_by_the_torso_as_before():
     j = judge("L", g, d, np.zeros(len(g.faces)))
     assert j["decided_by"] == "torso" and j["ease_cm"] == j["torso_ease_cm"] == pytest.approx(2.0)
     assert j["target_ease_cm"] == TARGET_EASE_CM and "waist_ease_cm" not in j
+
+
+def test_a_size_the_simulator_could_not_drape_is_judged_where_its_garment_is():
+    from tryon.sizing.judge import undrapeable
+
+    assert undrapeable("S", "no progress", "trousers")["decided_by"] == "hip"
+    assert undrapeable("S", "no progress", "trousers")["target_ease_cm"] == TARGET_HIP_EASE_CM["trousers"]
+    assert undrapeable("S", "no progress")["decided_by"] == "torso" and not undrapeable("S", "x")["fits"]

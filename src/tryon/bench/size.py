@@ -4,7 +4,7 @@ fit rule picks from simulated drapes?
 For every bench body (both genders, BMI 18-40) the recommendation is made twice: from the
 learned model's drapes (learned + refinement, the default of `tryon size`) and from the
 simulator's drapes of every size (`method="simulate"`). Each record holds both sizes,
-whether they agree, both wall times (body fit included) and every size's torso ease and
+whether they agree, both wall times (body fit included) and every size's deciding ease (torso, or a skirt's or trousers' hip band) and
 overstretched area under each method. The simulated side is the slow one (one full drape
 per size; the sizes run as Ray tasks on `workers` CPUs), so bodies are finished one at a
 time and their simulated side kept: a stopped bench resumes. The learned side (seconds

@@ -148,7 +148,8 @@ def _cmd_drape(args: argparse.Namespace) -> int:
     print(f"{req.garment} {rep['size'] or ''} in {req.fabric}: max strain {rep['max_strain'] * 100:.1f} %, mean {rep['mean_strain'] * 100:.1f} %, "
           f"penetration {rep['penetration_pct']:.2f} % of vertices, " + _how(rep) + f"; {rep['wall_s']:.1f} s -> {out}")
     if verdict:
-        ease = f"{verdict['decided_by']} ease {verdict['ease_cm']:.1f} cm"
+        ease = (f"{verdict['decided_by']} ease {verdict['ease_cm']:.1f} cm, a regular fit "
+                f"{verdict['target_ease_cm']:.1f} cm")
         print(f"fit: {'fits' if verdict['fits'] else 'does not fit'} ({'; '.join([ease, *verdict['why_not']])}; judged on "
               f"the {verdict['judged_on']}, as tryon size judges every size)")
     for note in rep.get("notes", []):
@@ -165,7 +166,7 @@ def _fit_verdict(result, predicted: bool) -> dict | None:
         return None
     j = judge_size(result.request.size or "made to measure", result, strain_reliable=not predicted)
     return {"fits": j["fits"], "why_not": j["why_not"], "torso_ease_cm": j["torso_ease_cm"], "decided_by": j["decided_by"],
-            "ease_cm": j["ease_cm"],
+            "ease_cm": j["ease_cm"], "target_ease_cm": j["target_ease_cm"],
             "judged_on": "prediction" if predicted else "refined drape" if result.metrics.get("method", "").startswith(
                 "learned") else "simulated drape"}
 

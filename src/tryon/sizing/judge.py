@@ -48,13 +48,15 @@ def fit_bands(garment) -> dict[str, np.ndarray] | None:
         return None
     depth = (m["waist_height"] - m["hip_height"]) / 100.0
     waist, hip = [], []
-    for k in range(len(garment.pattern.panels)):
+    for k, panel in enumerate(garment.pattern.panels):
+        if tuple(panel.grain) != (0.0, 1.0):  # u is the height up the panel only along a straight grain
+            return None
         v = np.unique(garment.faces[garment.face_panel == k])
         u = garment.uv[v, 0]
         top = u.max()
         waist.append(v[u >= top - WAIST_BAND_M])
         hip.append(v[np.abs(u - (top - depth)) <= HIP_BAND_M / 2])
-    return {"waist": np.concatenate(waist), "hip": np.concatenate(hip)}
+    return {"waist": np.unique(np.concatenate(waist)), "hip": np.unique(np.concatenate(hip))}  # seams: once
 
 
 def deciding_ease(garment, skin_distance: np.ndarray, regions: dict) -> dict:
@@ -128,11 +130,13 @@ def judge_size(size: str, result, strain_reliable: bool = True) -> dict:
                 timings=result.timings)
 
 
-def undrapeable(size: str, reason: str) -> dict:
-    """The judgement of a size the simulator could not drape on the body."""
+def undrapeable(size: str, reason: str, garment: str = "tshirt") -> dict:
+    """The judgement of a size of `garment` the simulator could not drape on the body."""
     nan = float("nan")
+    lower = garment in LOWER_BODY
     return {"size": size, "fits": False, "why_not": [f"the simulator could not drape it ({reason.split(';')[0]})"],
-            "decided_by": "torso", "ease_cm": nan, "target_ease_cm": TARGET_EASE_CM,
+            "decided_by": "hip" if lower else "torso", "ease_cm": nan,
+            "target_ease_cm": TARGET_HIP_EASE_CM[garment] if lower else TARGET_EASE_CM,
             "torso_ease_cm": nan, "overstrained_area_pct": nan, "max_strain_pct": nan, "penetration_pct": nan,
             "regions": {}, "timings": {}}
 

@@ -86,7 +86,7 @@ class VerdictSettled:
     """An observer of a refinement (`tryon.sim.loop`) that ends it once the size's verdict
     has settled: from step `first` on, every `every` steps, the size is judged on the
     current drape. Two judgements in a row end the run when they agree on whether it fits,
-    on the torso ease within `ease_cm` and on the overstretched area within `area_pct`,
+    on the deciding ease (the torso's, or a skirt's or trousers' hip band's) within `ease_cm` and on the overstretched area within `area_pct`,
     and when no number the verdict hangs on (each region's ease, the overstretched area)
     drifting on at its latest rate until step `horizon` (the refinement's last) would
     cross its threshold; at step `limit` the run ends in any case (a verdict near its

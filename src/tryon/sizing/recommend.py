@@ -121,7 +121,7 @@ def size_recommendation(body: Measurements, garment: str = "tshirt", fabric: str
         results, judged = learned_sizes(requests, person, model, refine)
     else:
         results = simulated_drapes(requests, workers, ray_address, person)
-        judged = [undrapeable(s, r) if isinstance(r, str) else dict(judge_size(s, r), judged_on="simulated drape")
+        judged = [undrapeable(s, r, garment) if isinstance(r, str) else dict(judge_size(s, r), judged_on="simulated drape")
                   for s, r in zip(sizes, results)]
     draped = [r for r in results if not isinstance(r, str)]
     if not draped:
