@@ -74,3 +74,21 @@ def test_a_size_the_simulator_could_not_drape_is_judged_where_its_garment_is():
     assert undrapeable("S", "no progress", "trousers")["decided_by"] == "hip"
     assert undrapeable("S", "no progress", "trousers")["target_ease_cm"] == TARGET_HIP_EASE_CM["trousers"]
     assert undrapeable("S", "no progress")["decided_by"] == "torso" and not undrapeable("S", "x")["fits"]
+
+
+def test_trouser_legs_longer_or_shorter_than_the_wearers_are_named():
+    g = _garment("trousers")
+    d = np.full(len(g.uv), 0.012)
+    strain = np.zeros(len(g.faces))
+    assert judge("L", g, d, strain, body_m=BODY)["inseam_excess_cm"] == pytest.approx(0.0, abs=0.15)  # drafted for her
+    shorter_legs = dict(BODY, crotch_height=BODY["crotch_height"] - 0.05)
+    long = judge("L", g, d, strain, body_m=shorter_legs)
+    assert long["inseam_excess_cm"] == pytest.approx(5.0, abs=0.15)
+    best, reasons = recommend([dict(long, size="L")])
+    assert best == "L" and "legs are 5.0 cm longer than this body's inseam" in reasons[0]
+    short = judge("L", g, d, strain, body_m=dict(BODY, crotch_height=BODY["crotch_height"] + 0.03))
+    assert "3.0 cm shorter" in recommend([dict(short, size="L")])[1][0]
+    assert "legs" not in recommend([dict(judge("L", g, d, strain, body_m=BODY), size="L")])[1][0]
+    assert "inseam_excess_cm" not in judge("L", g, d, strain)  # the wearer not known: nothing said
+    assert "inseam_excess_cm" not in judge("L", _garment("skirt"), np.full(len(_garment("skirt").uv), 0.01),
+                                           np.zeros(len(_garment("skirt").faces)), body_m=BODY)

@@ -167,6 +167,7 @@ def _fit_verdict(result, predicted: bool) -> dict | None:
     j = judge_size(result.request.size or "made to measure", result, strain_reliable=not predicted)
     return {"fits": j["fits"], "why_not": j["why_not"], "torso_ease_cm": j["torso_ease_cm"], "decided_by": j["decided_by"],
             "ease_cm": j["ease_cm"], "target_ease_cm": j["target_ease_cm"],
+            **{k: j[k] for k in ("waist_ease_cm", "inseam_excess_cm") if k in j},
             "judged_on": "prediction" if predicted else "refined drape" if result.metrics.get("method", "").startswith(
                 "learned") else "simulated drape"}
 

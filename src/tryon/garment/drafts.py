@@ -372,6 +372,12 @@ TROUSER_KNEE_PER_SEAT = 0.47
 TROUSER_HEM_PER_SEAT = 0.43
 
 
+def trouser_inseam(m: dict) -> float:
+    """The trouser block's inseam (m) for body measurements `m`: from the crotch point
+    (`TROUSER_CROTCH_EASE` below the body's) to the hem just above the ankle."""
+    return (m["crotch_height"] - TROUSER_CROTCH_EASE) - (m["ankle_height"] + TROUSER_HEM_ABOVE_ANKLE)
+
+
 def trouser_dims(m: dict, ease: Ease) -> dict:
     """The trouser block's lengths and widths (m) for body measurements `m`: length from
     the waist to the ankle, rise and inseam, and the circumferences at seat, knee and hem."""
@@ -380,7 +386,7 @@ def trouser_dims(m: dict, ease: Ease) -> dict:
     seat = m["hip_girth"] + ease.hip
     knee = max(TROUSER_KNEE_PER_SEAT * m["hip_girth"], 0.8 * m["thigh_girth"])
     hem = max(TROUSER_HEM_PER_SEAT * m["hip_girth"], 0.7 * m["thigh_girth"])
-    return {"length": m["waist_height"] - hem_z, "inseam": crotch_z - hem_z, "rise": m["waist_height"] - crotch_z,
+    return {"length": m["waist_height"] - hem_z, "inseam": trouser_inseam(m), "rise": m["waist_height"] - crotch_z,
             "hip_y": m["hip_height"] - hem_z, "seat": seat, "waist": m["waist_girth"] + ease.waistband,
             "knee": knee, "hem": hem, "hem_z": hem_z}
 

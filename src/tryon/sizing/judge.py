@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from tryon.garment.drafts import Ease
+from tryon.garment.drafts import Ease, trouser_inseam
 
 OVERSTRAIN = 0.10
 MAX_OVERSTRAINED_PCT = 10.0
@@ -35,6 +35,7 @@ TARGET_HIP_EASE_CM = {"skirt": 0.9, "trousers": 1.35}
 WAIST_BAND_M = 0.04  # the top of each panel (its waistband), in the panel's material
 HIP_BAND_M = 0.05    # the band round the hip line, in the panel's material
 LOWER_BODY = ("skirt", "trousers")
+LENGTH_NOTE_CM = 2.0  # trouser legs this much longer or shorter than the body's are named in the reasons
 
 
 def fit_bands(garment) -> dict[str, np.ndarray] | None:
@@ -100,13 +101,25 @@ def region_scores(garment, skin_distance: np.ndarray, strain: np.ndarray,
     return out
 
 
+def inseam_excess_cm(garment, body_m: dict | None) -> dict:
+    """For trousers and the wearer's drafting measurements `body_m` (m): how much longer
+    (cm; negative: shorter) the legs' inseam is than the one drafted for this body."""
+    meta = garment.pattern.meta if garment.pattern is not None else {}
+    drafted = meta.get("body_measurements_cm") or {}
+    if meta.get("garment") != "trousers" or body_m is None or not {"crotch_height", "ankle_height"} <= set(drafted):
+        return {}
+    own = trouser_inseam({k: drafted[k] / 100.0 for k in ("crotch_height", "ankle_height")})
+    return {"inseam_excess_cm": 100.0 * (own - trouser_inseam(body_m))}
+
+
 def judge(size: str, garment, skin_distance: np.ndarray, strain: np.ndarray, pressure: np.ndarray | None = None,
-          strain_reliable: bool = True) -> dict:
+          strain_reliable: bool = True, body_m: dict | None = None) -> dict:
     """Whether `size` fits, from its drape's distance to the skin per vertex (m), strain
     per face and contact pressure per vertex (Pa; None when not known). A network's
     prediction (`strain_reliable` False) is judged by its ease alone: millimetres of noise
     in its vertices read as several % of strain, so its overstretched area says nothing
-    until refinement."""
+    until refinement. `body_m`: the wearer's drafting measurements (m), for the trousers'
+    leg length."""
     regions = region_scores(garment, skin_distance, strain, pressure)
     area = rest_face_areas(garment)
     over = 100.0 * float(area[strain > OVERSTRAIN].sum() / area.sum())
@@ -118,7 +131,8 @@ def judge(size: str, garment, skin_distance: np.ndarray, strain: np.ndarray, pre
         why.append(f"it clings to the skin at the {', '.join(tight)} (ease under {MIN_EASE_CM} cm)")
     return {"size": size, "fits": not why, "why_not": why, **deciding_ease(garment, skin_distance, regions),
             "overstrained_area_pct": over, "max_strain_pct": 100 * float(strain.max()),
-            "penetration_pct": 100.0 * float((skin_distance < 0).mean()), "regions": regions}
+            "penetration_pct": 100.0 * float((skin_distance < 0).mean()), "regions": regions,
+            **inseam_excess_cm(garment, body_m)}
 
 
 def judge_size(size: str, result, strain_reliable: bool = True) -> dict:
@@ -126,8 +140,14 @@ def judge_size(size: str, result, strain_reliable: bool = True) -> dict:
     from tryon.sim.geometry import nearest_surface_points
 
     d, _, _ = nearest_surface_points(result.x, result.body_vertices, result.body_faces)
-    return dict(judge(size, result.garment, d, np.asarray(result.strain), np.asarray(result.pressure), strain_reliable),
-                timings=result.timings)
+    body_m = None
+    pattern = result.garment.pattern
+    if pattern is not None and pattern.meta.get("garment") == "trousers" and result.person is not None:
+        from tryon.body.measure import drafting_measurements
+
+        body_m = drafting_measurements(result.person.shape)
+    return dict(judge(size, result.garment, d, np.asarray(result.strain), np.asarray(result.pressure), strain_reliable,
+                      body_m), timings=result.timings)
 
 
 def undrapeable(size: str, reason: str, garment: str = "tshirt") -> dict:
@@ -154,6 +174,15 @@ def ease_words(j: dict) -> str:
     return f"{j.get('decided_by', 'torso')} ease {ease_of(j):.1f} cm"
 
 
+def length_words(j: dict) -> str:
+    """Trouser legs noticeably longer or shorter than the wearer's, in words ('' otherwise)."""
+    excess = j.get("inseam_excess_cm")
+    if excess is None or not math.isfinite(excess) or abs(excess) < LENGTH_NOTE_CM:
+        return ""
+    return (f"; its legs are {excess:.1f} cm longer than this body's inseam (hem them up)" if excess > 0
+            else f"; its legs are {-excess:.1f} cm shorter than this body's inseam")
+
+
 def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     """(the recommended size, the reasons). Sizes judged on the refined or simulated drape
     are the candidates; sizes judged on a prediction only count when nothing was refined."""
@@ -166,7 +195,8 @@ def recommend(judged: list[dict]) -> tuple[str, list[str]]:
     stretch = ("strain judged after refinement" if best.get("judged_on") == "prediction"
                else f"{best['overstrained_area_pct']:.0f} % of the area overstretched")
     waist = f", waistband ease {best['waist_ease_cm']:.1f} cm" if "waist_ease_cm" in best else ""
-    reasons = [f"{best['size']}: {ease_words(best)} (a regular fit is about {target_of(best):.1f} cm){waist}, {stretch}"]
+    reasons = [f"{best['size']}: {ease_words(best)} (a regular fit is about {target_of(best):.1f} cm){waist}, {stretch}"
+               + length_words(best)]
     for j in judged:
         if j is best:
             continue
