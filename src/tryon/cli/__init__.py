@@ -621,7 +621,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dt", type=float, help="time step in seconds (overrides the scene)")
     s.add_argument("--duration", type=float, help="simulated seconds (overrides the scene)")
     s.add_argument("--fabric", help="fabric preset or .json (overrides the scene)")
-    s.add_argument("--linear-solver", choices=["auto", "cholmod", "splu", "pcg"])
+    s.add_argument("--linear-solver", choices=["auto", "pcg-two-level", "pcg", "cholmod", "splu"])
     s.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     s.add_argument("--no-obj", action="store_true", help="skip the OBJ sequence")
     s.add_argument("--dump", action="store_true", help="print the example's YAML and exit")

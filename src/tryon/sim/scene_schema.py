@@ -21,7 +21,7 @@ from tryon.errors import SceneError
 
 CORNERS = ("bottom-left", "bottom-right", "top-left", "top-right")
 OBSTACLE_TYPES = ("sphere", "box", "plane", "pyramid", "mesh")
-LINEAR_SOLVERS = ("auto", "pcg", "splu", "cholmod")
+LINEAR_SOLVERS = ("auto", "pcg-two-level", "pcg", "splu", "cholmod")
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,99}$")
 MAX_GRID_SIDE = 100_000  # hard cap; `tryon.limits` has the (overridable) working limits
 
@@ -390,8 +390,9 @@ class CollisionSpec(SpecModel):
 class SolverSpec(SpecModel):
     """Time integration."""
 
-    linear: Literal["auto", "pcg", "splu", "cholmod"] = spec_field(
-        "auto", "linear solver (`auto` is PCG; `cholmod` needs scikit-sparse)", "", "auto | pcg | splu | cholmod")
+    linear: Literal["auto", "pcg-two-level", "pcg", "splu", "cholmod"] = spec_field(
+        "auto", "linear solver (`auto`: PCG, two-level from 1,500 vertices; `pcg`: block-Jacobi PCG; "
+        "`cholmod` needs scikit-sparse)", "", "auto | pcg-two-level | pcg | splu | cholmod")
     damping: Number = spec_field(0.0, "Rayleigh stiffness-proportional damping", "s", ge=0, le=10)
     max_substep_depth: Int = spec_field(3, "a failing step is split in 2, 4, ... 2^depth substeps", "", "int", ge=0, le=10)
     pcg_tol: Number = spec_field(1e-4, "relative residual of the iterative solver", "", gt=0, lt=1)
