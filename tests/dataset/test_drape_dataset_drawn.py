@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from tryon.dataset import BodyRanges, DrapeDatasetSpec, load_drape_dataset, make_drape_dataset
-from tryon.dataset.drapes import (GENERATOR_VERSION, GENERATOR_VERSION_FIXED_FABRIC, own_size_index, unit_body,
-                                  unit_fabric, unit_of, window_sizes)
+from tryon.dataset.drapes import (BLENDED, GENERATOR_VERSION, GENERATOR_VERSION_FIXED_FABRIC, fabric_group, fabric_named,
+                                  own_size_index, recorded_fabric_names, unit_body, unit_fabric, unit_of, window_sizes)
 from tryon.dataset.store import DatasetError
 from tryon.errors import FabricError, TryonError
 from tryon.fabric import load_fabric
@@ -69,6 +69,22 @@ def test_each_unit_draws_its_own_fabric_the_same_on_every_run():
     assert np.all(t[~blended] == 0.0) and np.all((t[blended] >= 0.0) & (t[blended] <= 1.0))
     fabric, record = unit_fabric(manifest, int(np.argmax(blended)))
     assert np.allclose(record["fabric_features"], fabric_features(fabric))
+
+
+def test_the_recorded_fabric_names_give_back_each_drawn_fabric():
+    manifest = _spec(count=40).manifest("v")
+    made = [unit_fabric(manifest, u) for u in range(40)]
+    arrays = {k: np.stack([np.float32(r[k]) if k == "fabric_t" else r[k] for _, r in made])
+              for k in ("fabric_a", "fabric_b", "fabric_t")}  # as a shard stores them
+    arrays["unit"] = np.arange(40)
+    names = recorded_fabric_names(manifest.spec, arrays)
+    assert [fabric.name for fabric, _ in made] == names.tolist()
+    for (fabric, _), name in zip(made, names):
+        assert np.array_equal(fabric_named(name).parameters(), fabric.parameters())
+    groups = {fabric_group(n) for n in names}
+    assert BLENDED in groups and groups - {BLENDED} <= set(FABRICS)
+    one = DrapeDatasetSpec(sizes=("S",), count=2, fabric="11oz-black-denim").manifest("v")
+    assert recorded_fabric_names(one.spec, {"unit": np.arange(2)}).tolist() == ["11oz-black-denim"] * 2
 
 
 def _girths(size: str, gender: str) -> dict:

@@ -305,6 +305,33 @@ def unit_fabric(manifest: Manifest, unit: int) -> tuple[Fabric, dict[str, np.nda
                     "fabric_features": fabric_features(fabric)}
 
 
+BLENDED = "blended"  # what a blend of two measured fabrics is reported as
+
+
+def recorded_fabric_names(spec: dict, arrays: dict[str, np.ndarray]) -> np.ndarray:
+    """[S] the name of each sample's fabric, read from what `unit_fabric` recorded: the
+    dataset's one fabric, the measured fabric drawn, or a blend's `a+b@t` (`blend_fabrics`)."""
+    names = spec.get("fabrics")
+    if not names or "fabric_a" not in arrays:
+        return np.full(len(arrays["unit"]), spec["fabric"])
+    a, b, t = arrays["fabric_a"].astype(int), arrays["fabric_b"].astype(int), arrays["fabric_t"]
+    return np.asarray([names[i] if i == j else f"{names[i]}+{names[j]}@{float(w):.3f}" for i, j, w in zip(a, b, t)])
+
+
+def fabric_named(name: str) -> Fabric:
+    """The fabric a recorded name (`recorded_fabric_names`) stands for."""
+    if "+" in name:
+        pair, t = name.rsplit("@", 1)
+        a, b = pair.split("+", 1)
+        return blend_fabrics(load_fabric(a), load_fabric(b), float(t))
+    return load_fabric(name)
+
+
+def fabric_group(name: str) -> str:
+    """How results report a recorded fabric: the measured fabric by name, a blend as `blended`."""
+    return BLENDED if "+" in name else str(name)
+
+
 def drape_unit(manifest: Manifest, refs: dict[tuple[str, str], Reference], unit: int) -> dict[str, np.ndarray]:
     """The drape of one (body, size) unit as a flat dict of arrays (see `SAMPLE_KEYS`)."""
     from tryon.drape.fit_metrics import face_strain, penetration

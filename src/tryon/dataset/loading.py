@@ -13,6 +13,8 @@ from tryon.dataset.drapes import DrapeDatasetSpec, Reference, build_references, 
 from tryon.dataset.generate import RunReport, open_dataset, run_generator
 from tryon.dataset.store import DatasetError, Manifest, ShardStore, sample_rows, software_version
 from tryon.drape.dress import DressedGarment
+from tryon.fabric import load_fabric
+from tryon.fabric.blend import fabric_features
 
 
 def make_drape_dataset(spec: DrapeDatasetSpec, out: str | Path, workers: int = 1, ray_address: str | None = None,
@@ -59,10 +61,20 @@ def load_drape_dataset(folder: str | Path) -> DrapeDataset:
     if manifest.kind != drapes.KIND:
         raise DatasetError(f"{folder} holds a {manifest.kind!r} dataset, not drapes")
     store = ShardStore(folder, manifest)
-    arrays = store.load()
+    arrays = _with_fabric_arrays(manifest.spec, store.load())
     refs = reference_garments(folder)
     faces = next(iter(refs.values())).faces
     return DrapeDataset(manifest, arrays, faces, refs)
+
+
+def _with_fabric_arrays(spec: dict, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The arrays with each sample's fabric by name (`fabric_name`) and, where the dataset
+    did not record them (one fabric, made before fabrics were recorded), its features."""
+    arrays["fabric_name"] = drapes.recorded_fabric_names(spec, arrays)
+    if "fabric_features" not in arrays:
+        one = fabric_features(load_fabric(spec["fabric"]))
+        arrays["fabric_features"] = np.repeat(one[None], len(arrays["unit"]), 0)
+    return arrays
 
 
 def reference_garments(folder: str | Path) -> dict[tuple[str, str], DressedGarment]:
@@ -99,14 +111,6 @@ def load_drape_datasets(folders: list[str | Path]) -> DrapeDataset:
         if diff or d.faces.shape != first.faces.shape or not np.array_equal(d.faces, first.faces):
             raise DatasetError(f"{f} cannot be trained on with {folders[0]}: "
                                f"{', '.join(diff) if diff else 'the garment topology'} differ")
-    if any("fabric_features" in d.arrays for d in sets):  # a set of one fabric: its features on every drape
-        from tryon.fabric import load_fabric
-        from tryon.fabric.blend import fabric_features
-
-        for d in sets:
-            if "fabric_features" not in d.arrays:
-                one = fabric_features(load_fabric(d.manifest.spec["fabric"]))
-                d.arrays["fabric_features"] = np.repeat(one[None], len(d.arrays["unit"]), 0)
     keys = set(first.arrays)
     for f, d in zip(folders, sets):
         missing = REQUIRED_KEYS - set(d.arrays)

@@ -23,7 +23,7 @@ from tryon.sim.geometry import area_vertex_normals
 from tryon.learn.topology import build_hierarchy
 
 CANDIDATES = 8
-CACHE_VERSION = 2  # 2: the fabric's features
+CACHE_VERSION = 3  # 2: the fabric's features; 3: its name
 GENDERS = ("male", "female")
 
 
@@ -35,6 +35,7 @@ class TrainingSet:
     size: np.ndarray        # [S] index into the dataset's sizes
     shape: np.ndarray       # [S,P] Anny shape vectors
     fabric: np.ndarray      # [S,F] `fabric_features` of each drape's fabric
+    fabric_name: np.ndarray  # [S] str, its name (`tryon.dataset.drapes.recorded_fabric_names`)
     body: np.ndarray        # [S,M,3] region vertices
     normals: np.ndarray     # [S,M,3]
     prior: np.ndarray       # [S,N,3]
@@ -77,27 +78,6 @@ def dataset_key(data: DrapeDataset) -> str:
     return h.hexdigest()[:12]
 
 
-def fabric_label(spec: dict, arrays: dict, row: int) -> str:
-    """The fabric a drape wears, by name: the dataset's one fabric, the measured fabric drawn,
-    or `blended` for a blend of two."""
-    names = spec.get("fabrics")
-    if not names or "fabric_a" not in arrays:
-        return spec["fabric"]
-    a, b = int(arrays["fabric_a"][row]), int(arrays["fabric_b"][row])
-    return names[a] if a == b else "blended"
-
-
-def drape_fabrics(data: DrapeDataset, rows: np.ndarray) -> np.ndarray:
-    """[S,F] the features of each drape's fabric: recorded per drape when the dataset draws
-    its fabrics (`--fabrics`), else those of the dataset's one fabric."""
-    if "fabric_features" in data.arrays:
-        return data.arrays["fabric_features"][rows].astype(np.float32)
-    from tryon.fabric import load_fabric
-    from tryon.fabric.blend import fabric_features
-
-    return np.repeat(fabric_features(load_fabric(data.manifest.spec["fabric"]))[None], len(rows), 0)
-
-
 def training_set(data: DrapeDataset, priors: dict, region: np.ndarray, cache: Path | None = None,
                  progress: bool = True) -> TrainingSet:
     """Every good sample of the dataset as arrays (cached in `cache` by the dataset's content)."""
@@ -123,7 +103,8 @@ def training_set(data: DrapeDataset, priors: dict, region: np.ndarray, cache: Pa
         cols["truth"].append(truth.astype(np.float32))
         cols["cand"].append(cand.astype(np.int32))
     ts = TrainingSet(rows, a["split"][rows].astype(str), a["gender"][rows].astype(np.int64), a["size"][rows].astype(np.int64),
-                     a["shape_params"][rows].astype(np.float32), drape_fabrics(data, rows),
+                     a["shape_params"][rows].astype(np.float32), a["fabric_features"][rows].astype(np.float32),
+                     a["fabric_name"][rows].astype(str),
                      *(np.stack(cols[k]) for k in cols))
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)

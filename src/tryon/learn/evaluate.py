@@ -16,7 +16,7 @@ import numpy as np
 
 from tryon.dataset.drapes import shape_params
 from tryon.dataset.loading import DrapeDataset
-from tryon.learn.data import GENDERS, TrainingSet, fabric_label
+from tryon.learn.data import GENDERS, TrainingSet
 from tryon.learn.features import a_posed_body
 from tryon.learn.model import DrapeModel
 
@@ -30,16 +30,16 @@ class Judge:
     """Per-sample measures of predicted garments on one evaluation set."""
 
     def __init__(self, data: DrapeDataset, ts: TrainingSet, model: DrapeModel):
-        from tryon.dataset.drapes import unit_fabric
+        from tryon.dataset.drapes import fabric_group, fabric_named
         from tryon.sim.model import ClothModel
 
         self.ts = ts
         self.garment = model.garment
         self.edges = _edges(model.faces)
         self.bodies = [a_posed_body(shape_params(s)) for s in ts.shape]
-        units = data.arrays["unit"][ts.rows]
-        self.fabrics = [unit_fabric(data.manifest, int(u))[0] for u in units]   # each drape's own
-        self.fabric_labels = [fabric_label(data.manifest.spec, data.arrays, int(r)) for r in ts.rows]
+        made = {name: fabric_named(name) for name in set(ts.fabric_name.tolist())}
+        self.fabrics = [made[name] for name in ts.fabric_name]   # each drape's own
+        self.fabric_labels = [fabric_group(name) for name in ts.fabric_name]
         sizes = data.manifest.spec["sizes"]
         cloth: dict = {}
         self.cloth = []

@@ -18,7 +18,8 @@ from tqdm import tqdm
 from tryon.dataset.loading import load_drape_datasets
 from tryon.errors import TryonError
 from tryon.io.atomic import atomic_write
-from tryon.learn.data import TrainingSet, dataset_key, fabric_label, model_parts, training_set
+from tryon.dataset.drapes import fabric_group
+from tryon.learn.data import TrainingSet, dataset_key, model_parts, training_set
 from tryon.learn.losses import DrapeLoss, LossWeights
 from tryon.learn.model import DrapeModel, timestamp
 from tryon.learn.network import NetConfig
@@ -93,8 +94,7 @@ def train_drape(data_dir: str | Path | list, out: str | Path, config: TrainConfi
     if len(val.rows) == 0:  # a small dataset drew no validation body: select on the training error
         val, selected_on = train, "train"
     config.net.sizes = len(data.manifest.spec["sizes"])
-    fabrics = fabric_normalisation(train.fabric, [fabric_label(data.manifest.spec, data.arrays, int(r)) for r in train.rows],
-                                   data.manifest.spec)
+    fabrics = fabric_normalisation(train.fabric, train.fabric_name.tolist(), data.manifest.spec)
     config.net.fabric = train.fabric.shape[1] if "mean" in fabrics else 0
     model = DrapeModel(data.manifest.spec["garment"], list(data.manifest.spec["sizes"]), config.net, hierarchy, priors,
                        region, train.body.astype(np.float64).mean(0), data.faces, dict(data.references), fabrics=fabrics)
@@ -169,7 +169,7 @@ def fabric_normalisation(features: np.ndarray, labels: list[str], spec: dict) ->
     """How a model of many fabrics reads them: the training drapes' features centred and
     scaled by their spread, their range (beyond it the model extrapolates) and the measured
     fabrics drawn from. When every training drape wears one fabric, only its name (`labels`:
-    each drape's `fabric_label`): a model of that one fabric."""
+    each drape's fabric by name): a model of that one fabric."""
     f = features.astype(np.float64)
     spread = f.std(0) if len(f) else np.zeros(1)
     if spread.max() < 1e-6:
@@ -185,7 +185,7 @@ def mean_error_cm(pred: np.ndarray, truth: np.ndarray) -> float:
 def model_card(data, data_dir: Path, model: DrapeModel, ts: TrainingSet, config: TrainConfig, state: dict,
                wall_s: float) -> dict:
     pred = predict_set(model, ts)
-    labels = np.asarray([fabric_label(data.manifest.spec, data.arrays, int(r)) for r in ts.rows])
+    labels = np.asarray([fabric_group(n) for n in ts.fabric_name])
     metrics = {}
     for split in sorted(set(ts.split.tolist())):
         k = ts.split == split
