@@ -51,6 +51,7 @@ def test_only_specs_that_draw_make_version_3_samples():
     (dict(fabric_mix=1.5), "probability"),
     (dict(size_window=4), "1 to 3"),
     (dict(sizes=("S", "L"), size_window=1), "consecutive"),
+    (dict(fabrics=("gray-interlock", "my+fabric.json")), "may not hold"),
 ])
 def test_a_drawn_spec_is_checked_before_any_work(kw, message):
     with pytest.raises(TryonError, match=message):

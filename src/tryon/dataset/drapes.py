@@ -106,6 +106,9 @@ class DrapeDatasetSpec:
         if not (0 < self.train_fraction and 0 <= self.val_fraction and self.train_fraction + self.val_fraction < 1):
             raise TryonError("train and validation fractions must be positive and leave room for a test split")
         load_fabric(self.fabric)
+        for name in (self.fabric, *(self.fabrics or ())):
+            if "+" in name or "@" in name:  # the samples name a blend a+b@t (recorded_fabric_names)
+                raise TryonError(f"fabric {name!r}: a dataset's fabric names may not hold '+' or '@'")
         if self.fabrics is not None:
             self.fabrics = tuple(self.fabrics)
             if not self.fabrics or len(set(self.fabrics)) != len(self.fabrics):

@@ -47,6 +47,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 DRESS_VERSION = 24
+# Dressed garments are cached and shared by every drape, dataset and service call, so they
+# must be the same whichever of them dressed first: dressing keeps the block-Jacobi solve
+# the cache was filled with, not the simulator's default (two-level from 1,500 vertices).
+DRESSING_LINEAR_SOLVER = "pcg"
 
 
 # --------------------------------------------------------------------------- tubes
@@ -610,7 +614,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
     welded by the caller, a wider gap is an error. (Closing the last 3 mm to 1 mm took a
     denim dress 40 of its 70 steps; welding moves each side 1.5 mm, and the folds that
     can put through the cloth next to it are smoothed out after welding.)"""
-    from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
     from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
     from tryon.sim.model import Control
@@ -641,7 +645,8 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
     state = model.initial_state()
     steps = 0
     if gap0 > tolerance:
-        outcome = run(ImplicitEulerSolver(model), state, dt, until=max_steps, observers=[closed], control=tightening,
+        outcome = run(ImplicitEulerSolver(model, StepOptions(linear_solver=DRESSING_LINEAR_SOLVER)), state, dt,
+                      until=max_steps, observers=[closed], control=tightening,
                       progress="sewing" if progress else None)
         state, steps = outcome.state, outcome.step
     gap = seams["gap"]
@@ -716,7 +721,7 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
     denim trousers for a 175 cm, 138 kg woman at 0.15 m/s instead of 0.25, and that drape
     took 46 s instead of 63; but the knit pair for the same body then started with its
     crotch pressed through itself and stopped in the fail-safe.)"""
-    from tryon.sim.integrator import ImplicitEulerSolver
+    from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
     from tryon.sim.loop import run
     from tryon.sim.mesh import ClothMesh
     from tryon.sim.obstacles import Obstacle
@@ -727,7 +732,8 @@ def relax(x: np.ndarray, faces: np.ndarray, uv: np.ndarray, corner_uv: np.ndarra
                           self_collision=True, still=True)
     t0 = time.perf_counter()
     relaxed = RelaxTest(rest_speed, until_slowing_stops)
-    outcome = run(ImplicitEulerSolver(model), model.initial_state(), dt, until=max_steps, observers=[relaxed])
+    outcome = run(ImplicitEulerSolver(model, StepOptions(linear_solver=DRESSING_LINEAR_SOLVER)), model.initial_state(), dt,
+                  until=max_steps, observers=[relaxed])
     return outcome.state.x.numpy(), {"relax_steps": outcome.step, "relax_final_speed": relaxed.speed,
                                      "sew_s": time.perf_counter() - t0}
 
