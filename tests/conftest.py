@@ -24,6 +24,29 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 
 
 @pytest.fixture
+def on_numba_threads():
+    """`run(fn)`: the results of fn(threads) on 1 and then 2 of numba's threads (the thread
+    count restored after); skips where numba has fewer than 2 threads."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs 2 numba threads")
+
+    def run(fn, counts=(1, 2)):
+        before = numba.get_num_threads()
+        try:
+            results = []
+            for threads in counts:
+                numba.set_num_threads(threads)
+                results.append(fn(threads))
+            return results
+        finally:
+            numba.set_num_threads(before)
+
+    return run
+
+
+@pytest.fixture
 def tmp_out(tmp_path):
     return tmp_path / "out"
 

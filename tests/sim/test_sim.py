@@ -1,6 +1,5 @@
 """Dynamics: integrator exactness, pins and handles, energy behaviour, solvers, friction."""
 
-import numba
 import numpy as np
 import pytest
 import torch
@@ -83,8 +82,7 @@ def test_linear_solvers_agree(kind):
     assert torch.allclose(a.x, b.x, atol=1e-9)
 
 
-@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
-def test_pcg_is_the_same_on_one_thread_and_on_two():
+def test_pcg_is_the_same_on_one_thread_and_on_two(on_numba_threads):
     """The solver's loops run on numba's threads; its chunked dot products keep the
     iterates bit-identical whatever the thread count (small chunks: many per thread)."""
     scene = example_scene("hanging", 24, dt=0.02)
@@ -95,17 +93,13 @@ def test_pcg_is_the_same_on_one_thread_and_on_two():
     blocks, rhs = system.A, system.rhs
     pattern: BlockPattern = solver.pattern
     free = ~solver.pinned_mask
-    results = []
-    before = numba.get_num_threads()
-    try:
-        for threads in (1, 2):
-            numba.set_num_threads(threads)
-            x = np.zeros((pattern.n, 3))
-            iterations = filtered_pcg(pattern.indptr, pattern.indices, blocks, pattern.diag_block, rhs, x, free, 1e-10,
-                                      5000, 64)
-            results.append((iterations, x))
-    finally:
-        numba.set_num_threads(before)
+
+    def solve(threads):
+        x = np.zeros((pattern.n, 3))
+        return filtered_pcg(pattern.indptr, pattern.indices, blocks, pattern.diag_block, rhs, x, free, 1e-10, 5000,
+                            64), x
+
+    results = on_numba_threads(solve)
     assert 0 < results[0][0] < 5000
     assert results[1][0] == results[0][0] and np.array_equal(results[1][1], results[0][1])
     A = pattern.to_csc(blocks).toarray().reshape(pattern.n, 3, pattern.n, 3)

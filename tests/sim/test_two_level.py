@@ -1,7 +1,6 @@
 """The two-level preconditioner: aggregates, the coarse correction against block-Jacobi,
 exact solves, thread independence, and the solver that datasets pin."""
 
-import numba
 import numpy as np
 import pytest
 
@@ -84,19 +83,15 @@ def test_an_aggregate_of_pinned_vertices_only_leaves_the_solve_exact():
     assert np.abs((ax - rhs)[free]).max() < 1e-9 * np.abs(rhs[free]).max()
 
 
-@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
-def test_two_level_is_the_same_on_one_thread_and_on_two():
+def test_two_level_is_the_same_on_one_thread_and_on_two(on_numba_threads):
     pattern, blocks, rhs, free = _system(24, steps=3)
     coarse = CoarseSpace(pattern)
-    results = []
-    before = numba.get_num_threads()
-    try:
-        for threads in (1, 2):
-            numba.set_num_threads(threads)
-            x = np.zeros((pattern.n, 3))
-            results.append((two_level_pcg(pattern, coarse, blocks, rhs, x, free, 1e-10, 5000, 64), x))
-    finally:
-        numba.set_num_threads(before)
+
+    def solve(threads):
+        x = np.zeros((pattern.n, 3))
+        return two_level_pcg(pattern, coarse, blocks, rhs, x, free, 1e-10, 5000, 64), x
+
+    results = on_numba_threads(solve)
     assert 0 < results[0][0] < 5000
     assert results[1][0] == results[0][0] and np.array_equal(results[1][1], results[0][1])
 

@@ -181,6 +181,26 @@ def _filtered_matvec(indptr, indices, blocks, p, free, ap, partial, chunk):
         partial[c] = s
 
 
+@nb.njit(cache=True, inline="always")
+def _step_row(alpha, p, ap, x, r, i):
+    """x[i] += alpha p[i], r[i] -= alpha ap[i]."""
+    for a in range(3):
+        x[i, a] += alpha * p[i, a]
+        r[i, a] -= alpha * ap[i, a]
+
+
+@nb.njit(cache=True, inline="always")
+def _precondition_row(pinv, r, z, i, e0, e1, e2, rz, rr):
+    """z[i] = pinv[i] r[i] + e, with e the coarse correction (-0.0 for block-Jacobi: adding
+    it changes no bit); returns rz + r[i] . z[i] and rr + r[i] . r[i], added term by term."""
+    for a in range(3):
+        e = e0 if a == 0 else (e1 if a == 1 else e2)
+        z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2] + e
+        rz += r[i, a] * z[i, a]
+        rr += r[i, a] * r[i, a]
+    return rz, rr
+
+
 @nb.njit(parallel=True, cache=True)
 def _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, rz_part, rr_part, chunk):
     """x += alpha p, r -= alpha ap, z = P^-1 r on free rows; per-chunk r . z and r . r.
@@ -191,14 +211,9 @@ def _update_and_precondition(alpha, p, ap, pinv, free, x, r, z, rz_part, rr_part
         rz = 0.0
         rr = 0.0
         for i in range(c * chunk, min(n, (c + 1) * chunk)):
-            for a in range(3):
-                x[i, a] += alpha * p[i, a]
-                r[i, a] -= alpha * ap[i, a]
+            _step_row(alpha, p, ap, x, r, i)
             if free[i]:
-                for a in range(3):
-                    z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2]
-                    rz += r[i, a] * z[i, a]
-                    rr += r[i, a] * r[i, a]
+                rz, rr = _precondition_row(pinv, r, z, i, -0.0, -0.0, -0.0, rz, rr)
             else:
                 z[i, 0] = 0.0
                 z[i, 1] = 0.0
@@ -368,9 +383,7 @@ def _jacobi_plus_coarse(pinv, r, ec, aggregate, free, z, rz_part, chunk):
         for i in range(c * chunk, min(n, (c + 1) * chunk)):
             if free[i]:
                 g = aggregate[i]
-                for a in range(3):
-                    z[i, a] = pinv[i, a, 0] * r[i, 0] + pinv[i, a, 1] * r[i, 1] + pinv[i, a, 2] * r[i, 2] + ec[g, a]
-                    rz += r[i, a] * z[i, a]
+                rz = _precondition_row(pinv, r, z, i, ec[g, 0], ec[g, 1], ec[g, 2], rz, 0.0)[0]
             else:
                 z[i, 0] = 0.0
                 z[i, 1] = 0.0
@@ -385,9 +398,7 @@ def _update_iterate(alpha, p, ap, free, x, r, rr_part, chunk):
     for c in nb.prange(rr_part.shape[0]):
         rr = 0.0
         for i in range(c * chunk, min(n, (c + 1) * chunk)):
-            for a in range(3):
-                x[i, a] += alpha * p[i, a]
-                r[i, a] -= alpha * ap[i, a]
+            _step_row(alpha, p, ap, x, r, i)
             if free[i]:
                 rr += r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2]
         rr_part[c] = rr

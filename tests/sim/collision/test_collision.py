@@ -1,7 +1,6 @@
 """Collision detection and response (tryon.sim.collision) against brute-force references,
 dense time sampling and known answers."""
 
-import numba
 import numpy as np
 import pytest
 import torch
@@ -352,28 +351,20 @@ def _contacts_equal(a, b):
     return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in ("idx", "w", "n", "d", "kind", "time"))
 
 
-def test_collision_queries_on_threads_equal_one_pass(monkeypatch):
+def test_collision_queries_on_threads_equal_one_pass(monkeypatch, on_numba_threads):
     """Pairs and contacts found in chunks on two threads equal those of one pass, in order."""
-    if numba.config.NUMBA_NUM_THREADS < 2:
-        pytest.skip("needs numba with 2 threads")
     x, faces, edges = _crumpled_two_layers(n=15)
     ob, ob_faces, ob_edges = ball([0.01, 0.0, -0.053], 0.05, subdivisions=3)
     x1 = x + np.random.default_rng(5).normal(scale=0.002, size=x.shape)
     tree = BVH.build(x[faces].min(1) - H, x[faces].max(1) + H)
 
-    def queries():
+    def queries(threads):
+        if threads == 2:
+            monkeypatch.setattr(geometry_threads, "CHUNK", 64)  # many chunks even on this small scene
         return (overlapping_pairs(tree), col.find_proximities(x, faces, edges, ob, ob_faces, ob_edges, H),
                 col.find_impacts(x, x1, faces, edges, ob, ob + 0.001, ob_faces, ob_edges, H))
 
-    threads = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        pairs1, prox1, imp1 = queries()
-        numba.set_num_threads(2)
-        monkeypatch.setattr(geometry_threads, "CHUNK", 64)  # many chunks even on this small scene
-        pairs2, prox2, imp2 = queries()
-    finally:
-        numba.set_num_threads(threads)
+    (pairs1, prox1, imp1), (pairs2, prox2, imp2) = on_numba_threads(queries)
     assert len(pairs1) > 10 * 64 and len(prox1) > 100 and len(imp1) > 10
     assert np.array_equal(pairs1, pairs2)
     assert _contacts_equal(prox1, prox2) and _contacts_equal(imp1, imp2)
