@@ -489,3 +489,28 @@ def test_welded_trousers_between_full_thighs_leave_the_skin_without_crossing_the
     assert used == TIGHT_CLEARANCE and pushed > 0 and crossings(out) == 0
     d, _, _ = geo.nearest_surface_points(out, body.vertices, body.faces)
     assert d.min() > 0.0  # out of the skin
+
+
+def test_a_seam_end_the_skin_holds_open_is_told_from_an_open_seam():
+    """`held_open_by_skin`: the stitches still open must all lie on the skin at both ends
+    (then sewing may weld them), and every other stitch must be shut."""
+    import trimesh
+
+    from tryon.drape.dress import DRESSING_THICKNESS, held_open_by_skin
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    body = BodyPose(np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int64), np.zeros(len(sphere.vertices), np.int64), {})
+
+    def on_skin(theta, lift=DRESSING_THICKNESS):
+        return (0.1 + lift) * np.array([np.cos(theta), np.sin(theta), 0.0])
+
+    held = np.stack([on_skin(0.0), on_skin(0.12),  # a 1.2 cm gap over the skin
+                     on_skin(1.0), on_skin(1.0) + [0, 0, 0.001]])  # a shut stitch
+    stitches = np.array([[0, 1], [2, 3]])
+    assert held_open_by_skin(held, stitches, body, shut=0.003)
+    lifted = held.copy()
+    lifted[1] = on_skin(0.12, lift=0.02)  # one end 2 cm off the skin: the cloth holds it open
+    assert not held_open_by_skin(lifted, stitches, body, shut=0.003)
+    other_open = held.copy()
+    other_open[3] = on_skin(1.0, lift=0.02)  # another seam still open off the skin
+    assert not held_open_by_skin(other_open, stitches, body, shut=0.003)

@@ -601,6 +601,13 @@ class DressedGarment:
 
 
 SEW_STALL_STEPS = 20  # a seam gap that closed less than 2 % in this many steps has stalled
+# A seam end the skin holds open (the neckline corner of a shoulder seam on a heavy neck and
+# trapezius: both sides lie on the skin, which the stitch would pull them through) stalls a
+# centimetre or so apart however long it is sewn. Such a gap, up to SKIN_HELD_GAP, is
+# welded once it has stalled for SKIN_HELD_STALL_STEPS steps: each side moves at most
+# 7.5 mm, along the skin, and the relaxation after welding evens the cloth out.
+SKIN_HELD_GAP = 0.015
+SKIN_HELD_STALL_STEPS = 3 * SEW_STALL_STEPS
 
 
 def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: float = 0.01, max_steps: int = 300,
@@ -611,7 +618,8 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
     seams close gently first and then tightly against the cloth's own resistance. Sewing
     stops when every gap is under `tolerance`, or under `SEAMS_CLOSED` and no longer
     closing (a coarse neckline against the skin); seams that end within `max_gap` are
-    welded by the caller, a wider gap is an error. (Closing the last 3 mm to 1 mm took a
+    welded by the caller, and so are gaps up to `SKIN_HELD_GAP` when every stitch still
+    open is held apart by the skin (`held_open_by_skin`); a wider gap is an error. (Closing the last 3 mm to 1 mm took a
     denim dress 40 of its 70 steps; welding moves each side 1.5 mm, and the folds that
     can put through the cloth next to it are smoothed out after welding.)"""
     from tryon.sim.integrator import ImplicitEulerSolver, StepOptions
@@ -631,15 +639,21 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
         k, ramp["k"] = ramp["k"], min(max_stiffness, ramp["k"] * SEW_TIGHTENING)
         return Control(stitch_stiffness=k)
 
-    seams = {"gap": gap0, "history": []}
+    seams = {"gap": gap0, "history": [], "held": False}
+
+    def stalled(history: list, steps: int) -> bool:
+        return len(history) > steps and history[-1] > 0.98 * history[-1 - steps]
 
     def closed(rec) -> bool:  # shut, or as shut as it gets (a weldable gap that stopped closing)
         x = rec.state.x.numpy()
         seams["gap"] = gap = stitch_gap(x, st)
         history = seams["history"]
         history.append(gap)
-        stalled = len(history) > SEW_STALL_STEPS and gap > 0.98 * history[-1 - SEW_STALL_STEPS]
-        return gap <= tolerance or (stalled and gap <= SEAMS_CLOSED)
+        if gap <= tolerance or (gap <= SEAMS_CLOSED and stalled(history, SEW_STALL_STEPS)):
+            return True
+        seams["held"] = (max_gap < gap <= SKIN_HELD_GAP and stalled(history, SKIN_HELD_STALL_STEPS)
+                         and held_open_by_skin(x, st, body, tolerance))
+        return seams["held"]
 
     t0 = time.perf_counter()
     state = model.initial_state()
@@ -650,7 +664,7 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
                       progress="sewing" if progress else None)
         state, steps = outcome.state, outcome.step
     gap = seams["gap"]
-    if gap > max_gap:
+    if gap > max_gap and not (seams["held"] or (gap <= SKIN_HELD_GAP and held_open_by_skin(state.x.numpy(), st, body, tolerance))):
         x = state.x.numpy()
         g = np.linalg.norm(x[st[:, 0]] - x[st[:, 1]], axis=1)
         worst = np.argsort(-g)[:3]
@@ -658,7 +672,22 @@ def sew(mesh: GarmentMesh, x0: np.ndarray, body: BodyPose, fabric: Fabric, dt: f
         where = "; ".join(f"{n} vertex {int(st[k, 0])} at ({', '.join(f'{100 * c:.1f}' for c in x[st[k, 0]])}) cm, "
                           f"{100 * g[k]:.1f} cm from its partner" for n, k in zip(names, worst))
         raise SimulationError(f"sewing {mesh.pattern.name}: seams still {gap * 100:.1f} cm apart after {steps} steps ({where})")
-    return state.x.numpy(), {"sew_steps": steps, "sew_gap_start_m": gap0, "sew_gap_end_m": gap, "sew_s": time.perf_counter() - t0}
+    stats = {"sew_steps": steps, "sew_gap_start_m": gap0, "sew_gap_end_m": gap, "sew_s": time.perf_counter() - t0}
+    if gap > max_gap:
+        stats["sew_held_by_skin"] = True
+    return state.x.numpy(), stats
+
+
+def held_open_by_skin(x: np.ndarray, stitches: np.ndarray, body: BodyPose, shut: float) -> bool:
+    """Whether every stitch pair still open (more than `shut` apart) lies on the skin at
+    both ends (within twice the dressing contact distance): the body, not the cloth, holds
+    it open, and every other seam is shut."""
+    from tryon.sim.geometry import signed_obstacle_distance
+
+    g = np.linalg.norm(x[stitches[:, 0]] - x[stitches[:, 1]], axis=1)
+    ends = np.unique(stitches[g > shut].reshape(-1))
+    return bool(len(ends)) and bool(np.all(signed_obstacle_distance(x[ends], body.vertices, body.faces)
+                                           <= 2.0 * DRESSING_THICKNESS))
 
 
 SEAMS_CLOSED = 0.005  # m: a placement whose every stitch pair is this close is welded at once
