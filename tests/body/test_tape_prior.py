@@ -311,3 +311,35 @@ def test_made_to_measure_trousers_reach_the_wearers_crotch():
     assert drafting_measurements(shape)["crotch_height"] < crotch - 0.05  # what it replaces
     assert {k: v for k, v in m.items() if k != "crotch_height"} == {
         k: v for k, v in drafting_measurements(shape).items() if k != "crotch_height"}
+
+
+@pytest.mark.anny
+@pytest.mark.parametrize("garment, body", [("dress", (175, 137.8, "female")), ("skirt", (200, 180.0, "male"))])
+def test_made_to_measure_skirts_and_dresses_pass_over_the_belly_and_both_thighs(garment, body):
+    # a 175 cm, 138 kg woman: her belly at the navel is 137 cm below a 114 cm waist, and the
+    # dress's straight skirt from that waist was 7 cm tighter than it; a 200 cm, 180 kg
+    # man: a skirt drafted from his 140 cm hip was tighter than both his thighs together
+    from tryon.body.fit import Measurements, fit_body
+    from tryon.body.measure import girth_profile, made_to_measure_measurements
+    from tryon.drape.pipeline import made_to_measure_cover
+    from tryon.garment.drafts import Ease, draft
+
+    height, weight, gender = body
+    shape = fit_body(Measurements(height_cm=height, weight_kg=weight, gender=gender)).shape
+    m = made_to_measure_measurements(shape)
+    hem_z = m["knee_height"] - Ease().skirt_below_knee
+    plain = draft(garment, m, size="made-to-measure")
+    fitted = draft(garment, m, size="made-to-measure", cover=made_to_measure_cover(shape, m))
+    side = "skirt_side_r" if garment == "dress" else "side_r"
+
+    def girth_at(pattern, z):  # four half-widths of the front panel's side seam at height z
+        pts = pattern.panels[0].edge(side).points
+        k = np.argsort(pts[:, 1])
+        return 4.0 * float(np.interp(z - hem_z, pts[k, 1], pts[k, 0]))
+
+    # the dress's skirt below its waist seam, the skirt below the hip line (above it the
+    # waistband holds it to the waist)
+    top = m["waist_height"] if garment == "dress" else m["hip_height"]
+    heights, girths = girth_profile(shape, hem_z + 0.02, top - 0.02)
+    assert np.all(np.array([girth_at(fitted, z) for z in heights]) >= girths + 0.02)  # with room to spare
+    assert any(girth_at(plain, z) < g for z, g in zip(heights, girths))  # what it mends

@@ -199,3 +199,16 @@ def made_to_measure_measurements(shape: BodyShape) -> dict[str, float]:
     m = drafting_measurements(shape)
     m["crotch_height"] = float(shape.vertices[find_landmarks(shape).crotch, 2])
     return m
+
+
+def girth_profile(shape: BodyShape, lo: float, hi: float, step: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Heights (m, from `hi` down to `lo` every `step`) and the girths (m) there, on the
+    tape of the girths: the convex hull of the torso's cross-section, and below the crotch
+    of both legs together (what a skirt passes over). A made-to-measure skirt or dress is
+    drafted to pass over all of it (`tryon.garment.drafts.BodyCover`): on a heavy body the
+    belly at the navel can be 20 cm more than the waist above it, and both upper thighs
+    together 9 cm more than the hip (a 200 cm, 180 kg man)."""
+    v = shape.vertices.detach()
+    edges = torso_edges(shape)
+    heights = np.arange(hi, lo, -step)
+    return heights, np.array([float(girth_at(v, edges, float(z))) for z in heights])

@@ -788,9 +788,18 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     x = place_pattern(mesh, body, clearance)
     st = mesh.stitches
     unfolded = 0
+    unfold_welded = False
     if len(st) and stitch_gap(x, st) <= SEAMS_CLOSED:
         # where a trouser panel turns from leg to torso above the crotch its rows can fold
-        x, unfolded = _unfold(x, mesh.faces, mesh_edges(mesh.faces), mesh.panel_of_vertex, body, clearance)
+        smoothed, unfolded = _unfold(x, mesh.faces, mesh_edges(mesh.faces), mesh.panel_of_vertex, body, clearance)
+        if stitch_gap(smoothed, st) <= SEAMS_CLOSED:
+            x = smoothed
+        else:
+            # smoothing each panel on its own tore the seams open (the crotch of a heavy
+            # man: 6.8 cm, and sewing trousers from there took a minute a step): the
+            # placement is welded as it is and the welded garment is smoothed instead,
+            # pushed out only `TIGHT_CLEARANCE` (his thighs leave no room for more)
+            unfold_welded = True
     gap0 = stitch_gap(x, st)
     closed = gap0 <= SEAMS_CLOSED
     if closed:
@@ -805,6 +814,8 @@ def dress_pattern(pattern: Pattern, body: BodyPose, fabric: Fabric, edge_length:
     pos, faces, corner_uv, group = merge_stitched(mesh, x)
     edges = mesh_edges(faces)
     if closed:
+        if unfold_welded:
+            pos, unfolded = _unfold(pos, faces, edges, np.zeros(len(pos), np.int64), body, TIGHT_CLEARANCE)
         pos, pushed, pushed_to = _welded_clear_of_skin(pos, faces, edges, body, clearance)
         pos = _uncollapse(pos, faces, corner_uv, body, pushed_to)
         stats["skin_clearance_m"] = pushed_to

@@ -35,12 +35,12 @@ import numpy as np
 import torch
 
 from tryon.body.fit import BodyFit, Measurements, fit_body
-from tryon.body.measure import drafting_measurements, made_to_measure_measurements
+from tryon.body.measure import drafting_measurements, girth_profile, made_to_measure_measurements
 from tryon.body.motion import morph_keyframes, smoothstep
 from tryon.body.pose import POSES, BodyPose, arm_pose, clear_thighs, named_pose, posed_body
 from tryon.errors import SimulationError, TryonError
 from tryon.fabric import load_fabric
-from tryon.garment.drafts import GARMENTS, WAISTBAND_GARMENTS, draft
+from tryon.garment.drafts import GARMENTS, WAISTBAND_GARMENTS, BodyCover, draft
 from tryon.drape.dress import DressedGarment, cloth_on_body, dress_cached
 from tryon.garment.prints import PRINT_WIDTH, GraphicPrint
 from tryon.garment.sizes import SIZES, size_measurements
@@ -438,6 +438,12 @@ def drape_pose(shape, garment: str) -> np.ndarray:
     return named_pose(shape, "a", thigh_gap_for(garment))
 
 
+def made_to_measure_cover(shape, m: dict) -> BodyCover:
+    """The girths a made-to-measure skirt or dress must pass over: the body's, from its
+    waist down to the knee."""
+    return BodyCover(*girth_profile(shape, m["knee_height"], m["waist_height"]))
+
+
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,
                        progress: bool = True, thigh_gap: float = 0.0,
                        a_pose: np.ndarray | None = None) -> tuple[BodyPose, DressedGarment]:
@@ -494,7 +500,7 @@ def drape(request: DrapeRequest, progress: bool = True, person: BodyFit | None =
     else:
         m = pm if made_to_measure else drafting_measurements(model_shape)
         pattern = draft(request.garment, m, size=request.size.upper() if request.size else "made-to-measure",
-                        meta={"gender": request.body.gender})
+                        meta={"gender": request.body.gender}, cover=made_to_measure_cover(person.shape, m) if made_to_measure else None)
         if request.print_image is not None:  # a print that does not fit is refused before dressing
             GraphicPrint.load(request.print_image, request.print_width_cm).placed_on(pattern)
         start, garment = dress_on_fit_model(pattern, model_shape, m["crotch_height"], load_fabric(request.fabric),

@@ -314,22 +314,51 @@ def draft_top(m: dict, ease: Ease, long_sleeves: bool) -> Pattern:
     return Pattern(name, panels, _bodice_seams(False) + _sleeve_seams())
 
 
-def draft_dress(m: dict, ease: Ease) -> Pattern:
+@dataclass(frozen=True)
+class BodyCover:
+    """What a made-to-measure garment below the waist must pass over: the body's girths
+    (m) at heights (m) above the floor (`tryon.body.measure.girth_profile`)."""
+
+    heights: np.ndarray
+    girths: np.ndarray
+
+    def largest(self, lo: float, hi: float) -> float:
+        """The largest girth between heights lo and hi (0 when none is measured there)."""
+        sel = (self.heights >= lo) & (self.heights <= hi)
+        return float(self.girths[sel].max()) if sel.any() else 0.0
+
+    def waist_over(self, waist: float, hem: float, waist_height: float, hem_height: float, ease: float) -> float:
+        """The smallest finished waist (m), at least `waist`, from which a straight skirt to
+        a hem of girth `hem` passes over every girth between them with `ease`."""
+        sel = (self.heights > hem_height) & (self.heights < waist_height)
+        t = (waist_height - self.heights[sel]) / (waist_height - hem_height)  # 0 at the waist, 1 at the hem
+        need = (self.girths[sel] + ease - t * hem) / (1.0 - t)
+        return max(waist, float(need.max())) if len(need) else waist
+
+
+def draft_dress(m: dict, ease: Ease, cover: BodyCover | None = None) -> Pattern:
     hem_height = m["knee_height"] - ease.skirt_below_knee
     d = bodice_dims(m, ease, hem_height)
     d.waist_y = m["waist_height"] - hem_height
-    d.half_waist = (m["waist_girth"] + ease.waist + 0.04) / 4.0
-    d.half_hem = (m["hip_girth"] + ease.hip) / 4.0 + 0.06
+    hip = m["hip_girth"] if cover is None else max(m["hip_girth"], cover.largest(hem_height, m["hip_height"]))
+    d.half_hem = (hip + ease.hip) / 4.0 + 0.06
+    waist = m["waist_girth"] + ease.waist + 0.04
+    if cover is not None:  # the skirt must pass over the belly below the waist seam
+        waist = cover.waist_over(waist, 4.0 * d.half_hem, m["waist_height"], hem_height, ease.waist)
+    d.half_waist = waist / 4.0
     panels = _bodice_panels(d, m["neck_height"] + 0.01, sleeveless=True)
     return Pattern("dress", panels, _bodice_seams(True))
 
 
-def draft_skirt(m: dict, ease: Ease) -> Pattern:
+def draft_skirt(m: dict, ease: Ease, cover: BodyCover | None = None) -> Pattern:
     hem_height = m["knee_height"] - ease.skirt_below_knee
     length = m["waist_height"] - hem_height
     hip_y = length - (m["waist_height"] - m["hip_height"])
     hw = (m["waist_girth"] + ease.waist) / 4.0
-    hh = (m["hip_girth"] + ease.hip) / 4.0
+    # made to measure, the hip line takes the largest girth the skirt passes over (a belly
+    # beyond the hip, both upper thighs together)
+    hip = m["hip_girth"] if cover is None else max(m["hip_girth"], cover.largest(hem_height, m["waist_height"]))
+    hh = (hip + ease.hip) / 4.0
     hem = hh + 0.03
     right = [
         line("hem_r", (0.0, 0.0), (hem, 0.0)),
@@ -441,12 +470,14 @@ def draft_trousers(m: dict, ease: Ease) -> Pattern:
     return Pattern("trousers", panels, seams)
 
 
-def draft(garment: str, measurements: dict, ease: Ease | None = None, size: str | None = None, meta: dict | None = None) -> Pattern:
-    """Draft `garment` (one of GARMENTS) for body `measurements` (metres)."""
+def draft(garment: str, measurements: dict, ease: Ease | None = None, size: str | None = None, meta: dict | None = None,
+          cover: BodyCover | None = None) -> Pattern:
+    """Draft `garment` (one of GARMENTS) for body `measurements` (metres). `cover`: made to
+    measure, the body's girths a skirt or a dress must pass over."""
     ease = ease or Ease()
     makers = {"tshirt": lambda: draft_top(measurements, ease, False), "longsleeve": lambda: draft_top(measurements, ease, True),
-              "skirt": lambda: draft_skirt(measurements, ease), "trousers": lambda: draft_trousers(measurements, ease),
-              "dress": lambda: draft_dress(measurements, ease)}
+              "skirt": lambda: draft_skirt(measurements, ease, cover), "trousers": lambda: draft_trousers(measurements, ease),
+              "dress": lambda: draft_dress(measurements, ease, cover)}
     if garment not in makers:
         raise TryonError(f"unknown garment {garment!r}; available: {', '.join(GARMENTS)}")
     pattern = makers[garment]()
