@@ -458,6 +458,28 @@ def test_bending_numba_and_torch_paths_agree(case):
     assert again[2] is buf and torch.equal(buf, fast[2])
 
 
+@pytest.mark.parametrize("case", range(len(DEFORMATIONS)))
+def test_bending_hessians_added_from_their_rank_one_factors_are_the_written_ones(case):
+    """The assembly adds c dtheta dtheta^T into the blocks from its factors: the same bits
+    as writing every hinge's 12x12 Hessian and adding that."""
+    from tryon.sim.forces.bending import bending_forces_rank_one
+    from tryon.sim.linear import BlockPattern, scatter_element_blocks, scatter_rank_one_blocks
+
+    x, hinges, rest, data = _bending_case(case)
+    args = (hinges, rest, data["area_sum"], data["edge_dir_uv"], smooth_bending)
+    energy, grad, hess = bending_forces(x, *args)
+    energy1, grad1, coeff, dtheta = bending_forces_rank_one(x, *args)
+    assert np.array_equal(energy.numpy(), energy1) and np.array_equal(grad.numpy(), grad1)
+    h = hinges.numpy()
+    pattern = BlockPattern(x.shape[0], [h])
+    written, factored = pattern.zeros(), pattern.zeros()
+    scatter_element_blocks(written, pattern.element_maps[0], np.ascontiguousarray(hess.numpy()), 4)
+    scatter_rank_one_blocks(factored, pattern.element_maps[0], coeff, dtheta, 4)
+    assert np.abs(written).max() > 0 and np.array_equal(written, factored)
+    with pytest.raises(ValueError, match="no_grad"):
+        bending_forces_rank_one(x.clone().requires_grad_(True), *args)
+
+
 def test_bending_stiffness_sees_signed_alpha_and_rest_shape_is_unstressed():
     x, _, hinges = two_triangle_hinge(1.0)
     uv = x[:, :2].clone()

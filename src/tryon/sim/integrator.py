@@ -30,7 +30,7 @@ from tryon.fabric.base import Fabric
 from tryon.sim import collision as col
 from tryon.sim.collision.contacts import Contacts
 from tryon.sim.collision.scene import CollisionScene
-from tryon.sim.forces.bending import bending_forces
+from tryon.sim.forces.bending import bending_forces_rank_one
 from tryon.sim.forces.contact import (
     FRICTION_SLIP_SPEED,
     friction_coefficient,
@@ -40,7 +40,8 @@ from tryon.sim.forces.contact import (
 )
 from tryon.sim.forces.membrane import membrane_forces
 from tryon.sim.forces.wind import wind_forces
-from tryon.sim.linear import BlockPattern, LinearSolver, add_diagonal_blocks, bsr_matvec, scatter_element_blocks
+from tryon.sim.linear import (BlockPattern, LinearSolver, add_diagonal_blocks, bsr_matvec, scatter_element_blocks,
+                              scatter_rank_one_blocks)
 from tryon.sim.model import ClothModel, ClothState, Control
 
 __all__ = ["ActiveContacts", "FRICTION_SLIP_SPEED", "ImplicitEulerSolver", "StepOptions", "StepStats", "StepSystem"]
@@ -94,6 +95,7 @@ class ImplicitEulerSolver:
         self.pinned_mask = np.zeros(model.num_vertices, dtype=bool)
         self.pinned_mask[model.pinned.numpy()] = True
         self._mass_blocks = self.mass[:, None, None] * np.eye(3)[None]
+        self._membrane_hessians = torch.empty((len(faces), 9, 9), dtype=torch.float64)  # reused: no page faults
         self._last_dv: np.ndarray | None = None
         self.collisions = CollisionScene.of(faces, model.edges, self.mass, model.obstacles.faces, model.obstacles.edges,
                                             model.collision.thickness, self.pinned_mask, model.collision.self_collision,
@@ -264,8 +266,9 @@ class ImplicitEulerSolver:
         H = self.pattern.zeros()
         D = self.pattern.zeros()
         with torch.no_grad():
-            _, g_mem, h_mem = membrane_forces(x, m.faces, m.Dm_inv, m.rest_area, m.stretching_law(fab.stretching_stiffness))
-            _, g_bend, h_bend = bending_forces(
+            _, g_mem, h_mem = membrane_forces(x, m.faces, m.Dm_inv, m.rest_area, m.stretching_law(fab.stretching_stiffness),
+                                              hess_out=self._membrane_hessians)
+            _, g_bend, c_bend, dtheta = bending_forces_rank_one(
                 x, m.hinges, m.hinge_rest_theta, m.hinge_area_sum, m.hinge_edge_dir_uv, m.bending_law(fab.bending_stiffness)
             )
             wind_v = m.wind.velocity if control is None or control.wind_velocity is None else control.wind_velocity
@@ -274,13 +277,13 @@ class ImplicitEulerSolver:
                 with_jacobian=m.wind.implicit,
             )
         n = m.num_vertices
-        f = -_scatter_vertex_grad(g_mem.numpy(), self.collisions.faces, n) - _scatter_vertex_grad(g_bend.numpy(), m.hinges.numpy(), n)
+        f = -_scatter_vertex_grad(g_mem.numpy(), self.collisions.faces, n) - _scatter_vertex_grad(g_bend, m.hinges.numpy(), n)
         f += f_wind.numpy()
         f += self.mass[:, None] * m.gravity.numpy()[None]
         if control is not None and control.external_force is not None:
             f += control.external_force.detach().numpy()
         scatter_element_blocks(H, self.pattern.element_maps[0], np.ascontiguousarray(h_mem.numpy()), 3)
-        scatter_element_blocks(H, self.pattern.element_maps[1], np.ascontiguousarray(h_bend.numpy()), 4)
+        scatter_rank_one_blocks(H, self.pattern.element_maps[1], c_bend, dtheta, 4)
         if d_wind is not None:
             scatter_element_blocks(D, self.pattern.element_maps[0], np.ascontiguousarray(d_wind.numpy()), 3)
         stitch_k = m.stitch_stiffness if control is None or control.stitch_stiffness is None else control.stitch_stiffness

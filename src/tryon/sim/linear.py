@@ -110,6 +110,26 @@ def scatter_element_blocks(blocks, element_map, hess, k):
 
 
 @nb.njit(cache=True)
+def scatter_rank_one_blocks(blocks, element_map, coeff, u, k):
+    """`scatter_element_blocks` of the Hessians coeff[e] u[e] u[e]^T, without writing them:
+    entry (m, n) is (coeff u[min(m, n)]) u[max(m, n)], the very number (and order of
+    additions) of the written Hessian (`tryon.sim.forces.bending`)."""
+    for e in range(u.shape[0]):
+        c = coeff[e]
+        for a in range(k):
+            for b in range(k):
+                dst = element_map[e, a * k + b]
+                for i in range(3):
+                    m = 3 * a + i
+                    for j in range(3):
+                        n = 3 * b + j
+                        if m <= n:
+                            blocks[dst, i, j] += (c * u[e, m]) * u[e, n]
+                        else:
+                            blocks[dst, i, j] += (c * u[e, n]) * u[e, m]
+
+
+@nb.njit(cache=True)
 def add_diagonal_blocks(blocks, diag_block, vertices, block_values):
     for q in range(vertices.shape[0]):
         dst = diag_block[vertices[q]]

@@ -206,7 +206,9 @@ def _bending_kernel(theta, rest_theta, coeff, dtheta, energy, grad, hess, with_h
                     hess[h, n, m] = value
 
 
-def _forces_kernel(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, with_hessian, reference_theta, hess_out):
+def _hinge_terms(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, reference_theta):
+    """(theta, rest, coeff c, dtheta) of every hinge, numpy; None when the stiffness needs
+    autograd."""
     hs = as_numpy(hinges, np.int64)
     num = hs.shape[0]
     theta, length, dtheta = np.empty(num), np.empty(num), np.empty((num, 12))
@@ -217,9 +219,17 @@ def _forces_kernel(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, w
     if torch.is_grad_enabled() and ke.requires_grad:
         return None
     coeff = as_numpy(ke * length_t * length_t / (4.0 * area_sum))
+    return theta, as_numpy(rest_theta), coeff, dtheta
+
+
+def _forces_kernel(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, with_hessian, reference_theta, hess_out):
+    terms = _hinge_terms(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, reference_theta)
+    if terms is None:
+        return None
+    theta, rest, coeff, dtheta = terms
+    num = theta.shape[0]
     energy, grad = torch.from_numpy(np.empty(num)), torch.from_numpy(np.empty((num, 12)))
     hess = output_buffer((num, 12, 12), hess_out, "hess_out") if with_hessian else torch.empty(1, 12, 12, dtype=F64)
-    rest = as_numpy(rest_theta)
     _bending_kernel(theta, rest, coeff, dtheta, energy.numpy(), grad.numpy(), hess.numpy(), with_hessian)
     return energy, grad, (hess if with_hessian else None)
 
@@ -255,6 +265,30 @@ def bending_forces(
         if result is not None:
             return result
     return _forces_torch(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, with_hessian, reference_theta)
+
+
+def bending_forces_rank_one(
+    x: torch.Tensor,
+    hinges: torch.Tensor,
+    rest_theta: torch.Tensor,
+    area_sum: torch.Tensor,
+    edge_dir_uv: torch.Tensor,
+    stiffness_fn: BendingStiffnessFn,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`bending_forces` without autograd, its Hessian left as the rank-one factors it is
+    made of: (energy [H], gradient [H, 12], c [H], dtheta [H, 12]) with Hessian
+    ``c dtheta dtheta^T``, numpy. The assembly adds the factors' products straight into
+    the system's blocks (`tryon.sim.linear.scatter_rank_one_blocks`, the same numbers)
+    instead of writing and reading 144 numbers per hinge."""
+    terms = _hinge_terms(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, None) \
+        if numba_path_ok(x, rest_theta, area_sum) else None
+    if terms is None:
+        raise ValueError("bending_forces_rank_one computes no gradients: call it under torch.no_grad()")
+    theta, rest, coeff, dtheta = terms
+    num = theta.shape[0]
+    energy, grad = np.empty(num), np.empty((num, 12))
+    _bending_kernel(theta, rest, coeff, dtheta, energy, grad, np.empty((1, 12, 12)), False)
+    return energy, grad, coeff, dtheta
 
 
 # --------------------------------------------------------------------------- rest state
