@@ -26,7 +26,7 @@ demo: $(STAMP)
 TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -n $(TEST_WORKERS)
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --durations=30
 
 # the fast tier (under 2 minutes): no drapes, Anny fits, Ray sessions or long runs
 test-fast: $(STAMP)

@@ -440,17 +440,19 @@ def test_a_size_far_too_small_for_the_body_is_refused_with_the_girths():
     assert size_too_small("trousers", "M", size_measurements("M", "male"), demo) is None
 
 
-def _relax_verdicts(speeds: list[float], until_slowing_stops: bool = True) -> int | None:
+def _relax_verdicts(speeds: list[float], until_slowing_stops: bool = True, fallback_at: int = 0) -> int | None:
     """The step (1-based) at which RelaxTest stops a relaxation whose fastest vertex moves
-    at `speeds`, or None."""
+    at `speeds` (the step `fallback_at` fell back: its contacts unresolved), or None."""
     from types import SimpleNamespace
 
     from tryon.drape.dress import RelaxTest
+    from tryon.sim.integrator import StepStats
 
     test = RelaxTest(rest_speed=0.02, until_slowing_stops=until_slowing_stops)
     for k, s in enumerate(speeds, 1):
         v = torch.tensor([[s, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
-        if test(SimpleNamespace(state=SimpleNamespace(v=v))):
+        if test(SimpleNamespace(state=SimpleNamespace(v=v), stats=StepStats(fallback=k == fallback_at))):
+            assert test.stuck == (k == fallback_at)
             return k
     return None
 
@@ -462,6 +464,7 @@ def test_relaxation_stops_on_drift_but_not_while_the_garment_is_still_fast():
     fast = [1.0] * 5 + [0.97] * 30
     assert _relax_verdicts(fast) is None  # still spending strain at ~1 m/s: keep relaxing
     assert _relax_verdicts([0.5, 0.2, 0.1, 0.05, 0.01]) == 5  # at rest
+    assert _relax_verdicts([0.5, 0.0, 0.0, 0.0, 0.0], fallback_at=2) == 2  # stuck in a contact: no use going on
 
 
 def test_welded_trousers_between_full_thighs_leave_the_skin_without_crossing_themselves():
@@ -537,3 +540,21 @@ def test_trousers_whose_panels_smoothing_tears_apart_are_welded_as_placed():
     garment = dress_pattern(pattern, body, load_fabric("gray-interlock"), 0.02, progress=False, mesh=mesh)
     assert garment.stats["sew_steps"] == 0 and garment.stats["self_intersections"] == 0
     assert penetration(garment.vertices, body.vertices, body.faces)["penetration_pct"] == 0.0
+
+
+def test_panels_laid_along_the_surface_reach_less_far_down_over_a_slope():
+    """`_z_along_surface`: a column down a front that leans out by `a` per metre covers
+    sqrt(1 + a^2) metres of cloth per metre of height; a column at the side, where the
+    half width does not change, runs straight down."""
+    from tryon.drape.dress import _z_along_surface
+
+    class Tube:
+        def at(self, z, what):
+            z = np.asarray(z, float)
+            return {"half": np.full_like(z, 0.15), "yc": np.zeros_like(z), "front": 0.10 + 0.5 * (1.5 - z)}[what]
+
+    s = np.array([0.1, 0.3, 0.5, 0.3])
+    frac = np.array([0.0, 0.0, 0.0, 1.0])
+    z = _z_along_surface(s, frac, 1.5, Tube(), "front")
+    np.testing.assert_allclose(z[:3], 1.5 - s[:3] / np.sqrt(1.25), atol=1e-9)
+    assert z[3] == pytest.approx(1.2, abs=1e-9)

@@ -150,3 +150,31 @@ def test_bad_patterns_are_refused():
         Pattern.from_dict({"panels": 3})
     with pytest.raises(TryonError, match="unknown garment"):
         draft("kimono", {}, size="M")
+
+
+def test_a_made_to_measure_dress_is_let_down_over_the_belly_with_its_side_seams_unchanged(model_body):
+    """A belly 20 cm forward, peaking 30 cm below the neck: the front's centre must run
+    hypot(31, 20) cm from the top of the panel to the peak where the side runs 31 cm, and
+    hangs straight below it; the flat back needs nothing more."""
+    from tryon.garment.drafts import BodyCover
+
+    _, meas = model_body
+    top, peak = meas["neck_height"] + 0.01, meas["neck_height"] - 0.30
+    h = meas["neck_height"] + 0.05 - 0.01 * np.arange(int((meas["neck_height"] - 0.15) / 0.01))
+    front = -0.12 - 0.20 * np.clip(1.0 - np.abs(h - peak) / 0.30, 0.0, None)
+    cover = BodyCover(h, np.zeros(len(h)), h, front, np.full(len(h), 0.12))
+    excess = np.hypot(top - peak, 0.20) - (top - peak)
+    assert cover.centre_excess("front", top, 0.4) == pytest.approx(excess, abs=0.002)
+    assert cover.centre_excess("back", top, 0.4) == pytest.approx(0.0, abs=1e-9)
+
+    plain = draft("dress", meas, size="made-to-measure")
+    fitted = draft("dress", meas, size="made-to-measure", cover=cover)
+    by_name = {p.name: p for p in fitted.panels}
+    assert by_name["front"].bounds()[0][1] == pytest.approx(-excess, abs=0.003)  # the hem dips at the centre
+    assert by_name["back"].bounds()[0][1] == pytest.approx(0.0, abs=1e-9)
+    for seam in fitted.seams:  # the side seams as they were, and still matching
+        a, b = fitted.seam_edges(seam)
+        assert a.length() == pytest.approx(plain.seam_edges(seam)[0].length(), abs=1e-9)
+        assert abs(a.length() - b.length()) < 0.003
+    assert all(p.placement.get("along_surface") for p in fitted.panels)
+    assert not any(p.placement.get("along_surface") for p in plain.panels)

@@ -201,6 +201,22 @@ def made_to_measure_measurements(shape: BodyShape) -> dict[str, float]:
     return m
 
 
+def centre_profiles(shape: BodyShape, lo: float, hi: float, step: float = 0.01) -> tuple[np.ndarray, ...]:
+    """Heights (m, from `hi` down to `lo` every `step`) and the body's foremost and
+    rearmost depth there (y, m; the body faces -y): the torso's, and below the crotch both
+    legs'. A made-to-measure dress is drafted long enough to run down both over the bust,
+    belly and buttocks (`tryon.garment.drafts.BodyCover.centre_excess`)."""
+    v = shape.vertices.detach().numpy()
+    v = v[np.unique(torso_edges(shape))]
+    heights = np.arange(hi, lo, -step)
+    front, back = np.empty(len(heights)), np.empty(len(heights))
+    for k, z in enumerate(heights):
+        band = v[np.abs(v[:, 2] - z) < 0.6 * step, 1]
+        front[k], back[k] = (band.min(), band.max()) if len(band) else (np.nan, np.nan)
+    good = np.isfinite(front)
+    return heights[good], front[good], back[good]
+
+
 def girth_profile(shape: BodyShape, lo: float, hi: float, step: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
     """Heights (m, from `hi` down to `lo` every `step`) and the girths (m) there, on the
     tape of the girths: the convex hull of the torso's cross-section, and below the crotch

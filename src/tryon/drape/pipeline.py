@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from tryon.body.fit import BodyFit, Measurements, fit_body
-from tryon.body.measure import drafting_measurements, girth_profile, made_to_measure_measurements
+from tryon.body.measure import centre_profiles, drafting_measurements, girth_profile, made_to_measure_measurements
 from tryon.body.motion import morph_keyframes, smoothstep
 from tryon.body.pose import POSES, BodyPose, arm_pose, clear_thighs, named_pose, posed_body
 from tryon.errors import SimulationError, TryonError
@@ -439,9 +439,10 @@ def drape_pose(shape, garment: str) -> np.ndarray:
 
 
 def made_to_measure_cover(shape, m: dict) -> BodyCover:
-    """The girths a made-to-measure skirt or dress must pass over: the body's, from its
-    waist down to the knee."""
-    return BodyCover(*girth_profile(shape, m["knee_height"], m["waist_height"]))
+    """What a made-to-measure skirt or dress must pass over: the body's girths from its
+    waist down to the knee, and its front and back from the neck down to the knee."""
+    return BodyCover(*girth_profile(shape, m["knee_height"], m["waist_height"]),
+                     *centre_profiles(shape, m["knee_height"] - 0.2, m["neck_height"] + 0.05))
 
 
 def dress_on_fit_model(pattern, shape, crotch_height: float, fabric, edge_length: float,

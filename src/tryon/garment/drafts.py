@@ -220,11 +220,20 @@ def bodice_half(d: BodiceDims, front: bool, sleeveless: bool = False) -> list[Ed
     return edges
 
 
-def _bodice_panels(d: BodiceDims, top_height: float, sleeveless: bool = False) -> list[Panel]:
-    place = {"part": "torso", "top_z": top_height, "over_shoulder": 0.05}
-    front = symmetric_panel("front", bodice_half(d, True, sleeveless), dict(place, side="front"))
-    back = symmetric_panel("back", bodice_half(d, False, sleeveless), dict(place, side="back"))
-    return [front, back]
+def _bodice_panels(d: BodiceDims, top_height: float, sleeveless: bool = False,
+                   drops: dict[str, float] | None = None) -> list[Panel]:
+    """Front and back. With `drops` (made to measure), each panel's centre hangs that much
+    below its side seams and the panels are laid on the body along its surface."""
+    panels = []
+    for side in ("front", "back"):
+        place = {"part": "torso", "top_z": top_height, "over_shoulder": 0.05, "side": side}
+        half = bodice_half(d, side == "front", sleeveless)
+        if drops is not None:
+            place["along_surface"] = True
+            if drops[side] > 0.0:
+                half[0] = _dropped_hem(d.half_hem, drops[side])
+        panels.append(symmetric_panel(side, half, place))
+    return panels
 
 
 def _bodice_seams(with_waist: bool) -> list[Seam]:
@@ -321,6 +330,26 @@ class BodyCover:
 
     heights: np.ndarray
     girths: np.ndarray
+    profile_heights: np.ndarray | None = None  # heights (m) of the body's front and back depths
+    front_y: np.ndarray | None = None          # the foremost point (y, m; the body faces -y)
+    back_y: np.ndarray | None = None           # the rearmost point
+
+    def centre_excess(self, side: str, top: float, bottom: float) -> float:
+        """How much longer (m) than `top - bottom` a panel's centre must be to run from
+        height `top` down the body's `side` ("front" or "back") over the bust, belly or
+        buttocks, bridging hollows, and hang straight from the most prominent point down
+        to `bottom` (0 without a profile)."""
+        if self.profile_heights is None:
+            return 0.0
+        out = -self.front_y if side == "front" else self.back_y
+        sel = (self.profile_heights <= top) & (self.profile_heights >= bottom)
+        h, u = self.profile_heights[sel], out[sel]
+        if len(h) < 2:
+            return 0.0
+        peak = int(np.argmax(u))
+        chain = _upper_hull(h[: peak + 1][::-1], u[: peak + 1][::-1])  # from the peak up to the top
+        run = float(np.hypot(np.diff(chain[:, 0]), np.diff(chain[:, 1])).sum())
+        return max(0.0, run - (h[0] - h[peak]))
 
     def largest(self, lo: float, hi: float) -> float:
         """The largest girth between heights lo and hi (0 when none is measured there)."""
@@ -336,18 +365,49 @@ class BodyCover:
         return max(waist, float(need.max())) if len(need) else waist
 
 
+def _hip_line(m: dict, cover: BodyCover | None, lo: float, hi: float) -> float:
+    """The girth (m) a hip line is drafted from: the body's hip, or made to measure the
+    largest girth the garment passes over between heights lo and hi (a belly beyond the
+    hip, both upper thighs together)."""
+    return m["hip_girth"] if cover is None else max(m["hip_girth"], cover.largest(lo, hi))
+
+
+def _upper_hull(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The upper convex hull [K,2] of points with increasing x (a string pulled taut over
+    them)."""
+    hull: list[tuple[float, float]] = []
+    for p in zip(x, y):
+        while len(hull) >= 2 and ((hull[-1][0] - hull[-2][0]) * (p[1] - hull[-2][1])
+                                  - (hull[-1][1] - hull[-2][1]) * (p[0] - hull[-2][0])) >= 0.0:
+            hull.pop()
+        hull.append(p)
+    return np.array(hull)
+
+
+def _dropped_hem(half_width: float, drop: float) -> Edge:
+    """The right half of a hem that dips `drop` below its side corners at the centre: the
+    half of one symmetric cubic, so that `symmetric_panel` joins the two halves back into
+    that cubic."""
+    k = drop / 0.75  # a cubic with both inner control points k down dips 0.75 k at its middle
+    return bezier("hem_r", (0.0, -drop), (0.375 * half_width, -drop), (0.75 * half_width, -0.5 * k), (half_width, 0.0))
+
+
 def draft_dress(m: dict, ease: Ease, cover: BodyCover | None = None) -> Pattern:
     hem_height = m["knee_height"] - ease.skirt_below_knee
     d = bodice_dims(m, ease, hem_height)
     d.waist_y = m["waist_height"] - hem_height
-    hip = m["hip_girth"] if cover is None else max(m["hip_girth"], cover.largest(hem_height, m["hip_height"]))
+    hip = _hip_line(m, cover, hem_height, m["hip_height"])
     d.half_hem = (hip + ease.hip) / 4.0 + 0.06
     waist = m["waist_girth"] + ease.waist + 0.04
     if cover is not None:  # the skirt must pass over the belly below the waist seam
         waist = cover.waist_over(waist, 4.0 * d.half_hem, m["waist_height"], hem_height, ease.waist)
     d.half_waist = waist / 4.0
-    panels = _bodice_panels(d, m["neck_height"] + 0.01, sleeveless=True)
-    return Pattern("dress", panels, _bodice_seams(True))
+    top = m["neck_height"] + 0.01
+    # made to measure, each panel's centre is let down by what the bust and belly (the
+    # buttocks) add to its run from the neck to the hem: a full bust and tummy adjustment
+    # that leaves the side seams as they are
+    drops = None if cover is None else {side: cover.centre_excess(side, top, hem_height) for side in ("front", "back")}
+    return Pattern("dress", _bodice_panels(d, top, sleeveless=True, drops=drops), _bodice_seams(True))
 
 
 def draft_skirt(m: dict, ease: Ease, cover: BodyCover | None = None) -> Pattern:
@@ -355,9 +415,7 @@ def draft_skirt(m: dict, ease: Ease, cover: BodyCover | None = None) -> Pattern:
     length = m["waist_height"] - hem_height
     hip_y = length - (m["waist_height"] - m["hip_height"])
     hw = (m["waist_girth"] + ease.waist) / 4.0
-    # made to measure, the hip line takes the largest girth the skirt passes over (a belly
-    # beyond the hip, both upper thighs together)
-    hip = m["hip_girth"] if cover is None else max(m["hip_girth"], cover.largest(hem_height, m["waist_height"]))
+    hip = _hip_line(m, cover, hem_height, m["waist_height"])
     hh = (hip + ease.hip) / 4.0
     hem = hh + 0.03
     right = [
