@@ -478,6 +478,8 @@ def test_bending_hessians_added_from_their_rank_one_factors_are_the_written_ones
     assert np.abs(written).max() > 0 and np.array_equal(written, factored)
     with pytest.raises(ValueError, match="no_grad"):
         bending_forces_rank_one(x.clone().requires_grad_(True), *args)
+    with pytest.raises(ValueError, match="CPU float64"):
+        bending_forces_rank_one(x.float(), *args)
 
 
 def test_bending_stiffness_sees_signed_alpha_and_rest_shape_is_unstressed():

@@ -283,7 +283,8 @@ def bending_forces_rank_one(
     terms = _hinge_terms(x, hinges, rest_theta, area_sum, edge_dir_uv, stiffness_fn, None) \
         if numba_path_ok(x, rest_theta, area_sum) else None
     if terms is None:
-        raise ValueError("bending_forces_rank_one computes no gradients: call it under torch.no_grad()")
+        raise ValueError("bending_forces_rank_one runs the numba kernel only: give CPU float64 tensors and call it "
+                         "under torch.no_grad() (it records no gradients; use bending_forces for those)")
     theta, rest, coeff, dtheta = terms
     num = theta.shape[0]
     energy, grad = np.empty(num), np.empty((num, 12))
